@@ -1,0 +1,49 @@
+# URSA: every target creates .venv first when it is missing (or when pyproject.toml changed).
+PYTHON ?= $(shell command -v python3.11 || command -v python3.12 || command -v python3)
+VENV := .venv
+PY := $(VENV)/bin/python
+STAMP := $(VENV)/.installed
+ARGS ?=
+PYTEST_ARGS ?=
+
+.PHONY: run test test-fast bench lint proto system-deps clean
+
+$(STAMP): pyproject.toml
+	@test -x $(PY) || $(PYTHON) -m venv $(VENV)
+	$(PY) -m pip install --upgrade pip wheel setuptools
+	$(PY) -m pip install -e '.[dev]'
+	@touch $(STAMP)
+
+## run: the whole stack on this machine (default config); ARGS="--collectors 4 --preset tiny"
+run: $(STAMP)
+	$(PY) -m services.cli up $(ARGS)
+
+## system-deps: Debian packages the tests use (headless chromium for the dashboard test)
+system-deps:
+	@command -v chromium >/dev/null 2>&1 || { \
+	  if [ "$$(id -u)" = 0 ] && command -v apt-get >/dev/null 2>&1; then \
+	    (apt-get update -qq || true) && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq chromium >/dev/null; \
+	  else echo "chromium missing and cannot be installed here; the browser test will skip"; fi; }
+
+## test: the whole suite, slow end-to-end tests included
+test: $(STAMP) system-deps
+	$(PY) -m pytest $(PYTEST_ARGS)
+
+## test-fast: everything but the slow end-to-end tests
+test-fast: $(STAMP)
+	$(PY) -m pytest -m "not slow and not docker" $(PYTEST_ARGS)
+
+## bench: every benchmark in quick mode
+bench: $(STAMP)
+	@for b in benchmarks/*.py; do echo "== $$b"; $(PY) $$b --quick || exit 1; done
+
+lint: $(STAMP)
+	$(VENV)/bin/ruff check .
+	$(VENV)/bin/mypy ursa proto services
+
+## proto: regenerate proto/ursa_pb2.py(i) from proto/ursa.proto
+proto: $(STAMP)
+	$(PY) -m grpc_tools.protoc -Iproto --python_out=proto --pyi_out=proto proto/ursa.proto
+
+clean:
+	rm -rf $(VENV) .pytest_cache .mypy_cache .ruff_cache

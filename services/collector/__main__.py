@@ -1,0 +1,32 @@
+"""Collector service: one reset-free environment acting with the learner's latest policy.
+
+Consumes: policy weights (``learner/weights``), skills from the repertoire (``repertoire/sample``).
+Produces: transition chunks (``collector/transitions/{cid}``), features of safe states
+(``collector/features/{cid}``), stats (``collector/stats/{cid}``), a liveliness token.
+Run alone: ``python -m services.collector --preset small --collector-id c0 --bus.router tcp/127.0.0.1:7447``
+(it acts with its initial policy until weights arrive and keeps a zero skill until the
+repertoire answers).
+"""
+
+from __future__ import annotations
+
+import signal
+
+from services.collector.service import Collector, CollectorArgs
+from services.common.cli import parse, setup_logging
+
+
+def main() -> None:
+    args = parse(CollectorArgs, description=__doc__)
+    setup_logging(f"collector/{args.collector_id}")
+    c = Collector(args)
+    signal.signal(signal.SIGTERM, lambda *_: c.rt.stop.set())
+    signal.signal(signal.SIGINT, lambda *_: c.rt.stop.set())
+    try:
+        c.run()
+    finally:
+        c.close()
+
+
+if __name__ == "__main__":
+    main()

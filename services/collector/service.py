@@ -1,0 +1,275 @@
+"""Collector: runs one reset-free environment with the current policy (paper Algorithm 1).
+
+Subscribes:  ursa/{run}/learner/weights (PolicyWeights, latest; also queried at start)
+             ursa/{run}/learner/encoder (EncoderWeights, latest)
+Queries:     ursa/{run}/repertoire/sample (SkillRequest -> SkillReply), every T steps
+Publishes:   ursa/{run}/collector/transitions/{cid} (TransitionChunk, BLOCK)
+             ursa/{run}/collector/features/{cid} (SafeFeatures, BLOCK)
+             ursa/{run}/collector/stats/{cid} (Stats, may drop)
+Liveliness:  ursa/{run}/alive/collector/{cid}
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import threading
+import time
+from collections import deque
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from proto import codec
+from proto import ursa_pb2 as pb
+from services.common.bus import publisher, query_one, safe_handler
+from services.common.config import BusConfig, RunConfig, save_resolved
+from services.common.runtime import ServiceRuntime
+from ursa.config import Config
+from ursa.envs import make_env
+
+
+def default_collector_id() -> str:
+    """URSA_COLLECTOR_ID, else the host name (unique per container when scaled)."""
+    cid = os.environ.get("URSA_COLLECTOR_ID") or os.uname().nodename
+    return "".join(c if c.isalnum() or c in "-_." else "-" for c in cid)
+
+
+@dataclass(frozen=True)
+class CollectorArgs:
+    """Collector service settings."""
+
+    core: Config = field(default_factory=Config)
+    """The algorithm's config (``--preset`` picks its defaults)."""
+    bus: BusConfig = field(default_factory=BusConfig)
+    run: RunConfig = field(default_factory=RunConfig)
+    collector_id: str = field(default_factory=default_collector_id)
+    """Unique id of this collector (env URSA_COLLECTOR_ID, default: host name)."""
+    seed: int = int(os.environ.get("URSA_SEED", "0"))
+    """Seed of the environment and of the exploration noise."""
+    max_steps: int = 0
+    """Stop after this many control steps (0: run until stopped)."""
+    realtime_factor: float = 0.0
+    """Throttle to this multiple of real time (1.0 = 20 Hz control); 0 runs as fast as possible."""
+
+
+class Collector:
+    """One collector process: env + policy, publishing chunks, features and stats."""
+
+    def __init__(self, args: CollectorArgs) -> None:
+        self.args = args
+        self.cfg = args.core
+        self.cid = args.collector_id
+        self.rt = ServiceRuntime("collector", self.cid, args.bus, args.run)
+        self.log = self.rt.log
+        t = self.rt.topics
+        self.incarnation = self._next_incarnation()
+        save_resolved(args, args.run, f"collector-{self.cid}")
+
+        env_kwargs: dict[str, Any] = {}
+        if self.cfg.env.name == "a1":
+            env_kwargs = {"task": self.cfg.env.task, "damage": self.cfg.env.damage or None,
+                          "rescue": self.cfg.env.rescue}
+        self.env = make_env(self.cfg.env.name, seed=args.seed, **env_kwargs)
+        self.feature_key = "vae_input" if self.cfg.feature == "vae" else self.cfg.feature
+        if self.feature_key not in self.env.feature_dims:
+            raise SystemExit(f"env {self.cfg.env.name} has no feature {self.feature_key!r}; "
+                             f"it has {sorted(self.env.feature_dims)}")
+        self.skill_dim = self._skill_dim()
+        self.rng = np.random.default_rng(args.seed + 7919 * self.incarnation)
+
+        self.pub_chunks = publisher(self.rt.session, t.transitions(self.cid), reliable=True)
+        self.pub_features = publisher(self.rt.session, t.features(self.cid), reliable=True)
+        self._weights_lock = threading.Lock()
+        self._pending_weights: pb.PolicyWeights | None = None
+        self.sub_weights = self.rt.session.declare_subscriber(
+            t.weights, safe_handler(pb.PolicyWeights, self._on_weights, self.rt.drops,
+                                    args.run.run_id))
+
+        self.policy_version = 0
+        self.skill = np.zeros(self.skill_dim, np.float32)
+        self.skill_source = "none"
+        self.seq = 0
+        self.feat_seq = 0
+        self.step_count = 0
+        self.ret_window: deque[float] = deque(maxlen=1000)
+        self.unsafe_window: deque[bool] = deque(maxlen=self.cfg.collector.violation_window)
+        self.total_unsafe = 0
+        self.rescues = 0
+        self.last_info: dict[str, Any] = {}
+
+    # ---- setup helpers -------------------------------------------------------------------
+    def _skill_dim(self) -> int:
+        if self.cfg.feature == "vae":
+            return 3
+        return int(self.env.feature_dims[self.feature_key])
+
+    def _next_incarnation(self) -> int:
+        path = self.args.run.dir / "collectors" / f"{self.cid}.json"
+        path.parent.mkdir(parents=True, exist_ok=True)
+        n = 0
+        if path.exists():
+            try:
+                n = int(json.loads(path.read_text()).get("incarnation", -1)) + 1
+            except (ValueError, OSError):
+                n = 0
+        tmp = path.with_suffix(".tmp")
+        tmp.write_text(json.dumps({"incarnation": n, "started": time.time()}))
+        os.replace(tmp, path)
+        return n
+
+    # ---- bus callbacks -------------------------------------------------------------------
+    def _on_weights(self, msg: pb.PolicyWeights, key: str) -> None:
+        with self._weights_lock:
+            if self._pending_weights is None or msg.version > self._pending_weights.version:
+                self._pending_weights = msg
+
+    def _maybe_load_weights(self) -> None:
+        with self._weights_lock:
+            msg, self._pending_weights = self._pending_weights, None
+        if msg is None or msg.version <= self.policy_version:
+            return
+        self.policy_version = int(msg.version)
+        self.log.info("policy weights version %d", self.policy_version)
+
+    def _request_skill(self) -> None:
+        req = pb.SkillRequest(header=self.rt.header(), n=1)
+        reply = query_one(self.rt.session, self.rt.topics.sample, pb.SkillReply,
+                          codec.encode(req), timeout_s=1.0)
+        if reply is None or reply.error:
+            self.skill_source = "none"
+            return
+        try:
+            skills = codec.from_array(reply.skills)
+        except codec.BadMessage as e:
+            self.rt.drops.add("malformed")
+            self.log.warning("bad skill reply: %s", e)
+            return
+        if skills.shape != (1, self.skill_dim) or not np.all(np.isfinite(skills)):
+            self.rt.drops.add("invalid")
+            return
+        self.skill = skills[0].astype(np.float32)
+        self.skill_source = "kde"
+
+    # ---- acting --------------------------------------------------------------------------
+    def act(self, obs: np.ndarray) -> np.ndarray:
+        return self.rng.uniform(-1.0, 1.0, size=self.env.act_dim).astype(np.float32)
+
+    def run(self) -> None:
+        cfg = self.cfg.collector
+        obs, _ = self.env.reset(seed=self.args.seed)
+        existing = query_one(self.rt.session, self.rt.topics.weights, pb.PolicyWeights, timeout_s=1.0)
+        if existing is not None:
+            self._on_weights(existing, self.rt.topics.weights)
+        buf: dict[str, list[Any]] = {k: [] for k in
+                                     ("obs", "action", "reward", "cost", "safe", "features", "skill")}
+        chunk_first_step = 0
+        last_stats = 0.0
+        stats_period = 1.0 / cfg.stats_hz
+        t_start = time.monotonic()
+        steps_at_last_stats, time_at_last_stats = 0, time.monotonic()
+        sps = 0.0
+        while not self.rt.stop.is_set():
+            if self.args.max_steps and self.step_count >= self.args.max_steps:
+                break
+            if self.step_count % cfg.skill_period == 0:
+                self._request_skill()
+            self._maybe_load_weights()
+            action = self.act(obs)
+            next_obs, reward, _, _, info = self.env.step(action)
+            feat = np.asarray(info["features"][self.feature_key], np.float32)
+            safe = bool(info["safe"])
+            if not buf["obs"]:
+                chunk_first_step = self.step_count
+            buf["obs"].append(obs)
+            buf["action"].append(action)
+            buf["reward"].append(reward)
+            buf["cost"].append(info["cost"])
+            buf["safe"].append(safe)
+            buf["features"].append(feat)
+            buf["skill"].append(self.skill)
+            obs = next_obs
+            self.step_count += 1
+            self.ret_window.append(float(reward))
+            self.unsafe_window.append(not safe)
+            self.total_unsafe += int(not safe)
+            self.rescues = int(info.get("rescues", 0))
+            self.last_info = info
+            if len(buf["obs"]) >= cfg.chunk_len:
+                self._publish_chunk(buf, chunk_first_step)
+                buf = {k: [] for k in buf}
+            now = time.monotonic()
+            if now - last_stats >= stats_period:
+                dt = now - time_at_last_stats
+                if dt > 0.5:
+                    sps = (self.step_count - steps_at_last_stats) / dt
+                    steps_at_last_stats, time_at_last_stats = self.step_count, now
+                self._publish_stats(sps)
+                last_stats = now
+            if self.args.realtime_factor > 0:
+                target = t_start + self.step_count * 0.05 / self.args.realtime_factor
+                delay = target - time.monotonic()
+                if delay > 0:
+                    time.sleep(delay)
+        if buf["obs"]:
+            self._publish_chunk(buf, chunk_first_step)
+        self._publish_stats(sps)
+
+    def _publish_chunk(self, buf: dict[str, list[Any]], first_step: int) -> None:
+        arr = {
+            "obs": np.asarray(buf["obs"], np.float32),
+            "action": np.asarray(buf["action"], np.float32),
+            "reward": np.asarray(buf["reward"], np.float32),
+            "cost": np.asarray(buf["cost"], np.float32),
+            "safe": np.asarray(buf["safe"], np.bool_),
+            "features": np.asarray(buf["features"], np.float32),
+            "skill": np.asarray(buf["skill"], np.float32),
+        }
+        msg = pb.TransitionChunk(
+            header=self.rt.header(), collector_id=self.cid, seq=self.seq, first_step=first_step,
+            policy_version=self.policy_version, incarnation=self.incarnation,
+            task=self.cfg.env.task if self.cfg.env.name == "a1" else self.cfg.env.name,
+            damage=self.cfg.env.damage,
+            **{k: codec.to_array(v) for k, v in arr.items()},
+        )
+        self.pub_chunks.put(codec.encode(msg))
+        self.seq += 1
+        safe_feats = arr["features"][arr["safe"]]
+        if len(safe_feats):
+            fm = pb.SafeFeatures(header=self.rt.header(), collector_id=self.cid, seq=self.feat_seq,
+                                 features=codec.to_array(safe_feats))
+            self.pub_features.put(codec.encode(fm))
+            self.feat_seq += 1
+
+    def _publish_stats(self, sps: float) -> None:
+        n = max(len(self.unsafe_window), 1)
+        arrays: dict[str, np.ndarray] = {"skill": self.skill}
+        for k in ("joint_angles", "base_position", "base_orientation"):
+            if k in self.last_info:
+                arrays[k] = np.asarray(self.last_info[k], np.float32)
+        self.rt.publish_stats(
+            {
+                "steps": self.step_count,
+                "steps_per_s": sps,
+                "chunks": self.seq,
+                "return_mean": float(np.mean(self.ret_window)) if self.ret_window else 0.0,
+                "violation_rate": sum(self.unsafe_window) / n,
+                "unsafe_total": self.total_unsafe,
+                "rescues": self.rescues,
+                "policy_version": self.policy_version,
+                "incarnation": self.incarnation,
+            },
+            labels={"env": self.cfg.env.name, "task": self.cfg.env.task,
+                    "damage": self.cfg.env.damage or "none", "skill_source": self.skill_source},
+            arrays=arrays,
+        )
+
+    def close(self) -> None:
+        for h in (self.sub_weights, self.pub_chunks, self.pub_features):
+            try:
+                h.undeclare()
+            except Exception:
+                pass
+        self.env.close()
+        self.rt.close()

@@ -1,0 +1,176 @@
+"""Start the whole URSA stack on one machine as separate processes (``ursa up`` / ``make run``).
+
+Starts the router, then the repertoire, the learner, N collectors, the dashboard and the HTTP
+API, each a separate Python process in its own process group. Prefixes their logs, stops all of
+them on Ctrl-C or SIGTERM (SIGTERM, then SIGKILL after a grace period) and leaves no process
+behind.
+"""
+
+from __future__ import annotations
+
+import os
+import signal
+import socket
+import subprocess
+import sys
+import threading
+import time
+from dataclasses import dataclass
+from typing import IO, Literal
+
+_COLORS = ["36", "33", "35", "32", "34", "31", "96", "93", "95", "92"]
+
+
+@dataclass(frozen=True)
+class UpArgs:
+    """``ursa up``: the whole stack on this machine."""
+
+    preset: Literal["tiny", "small", "paper"] = "small"
+    """Config preset of every service."""
+    env: Literal["a1", "point"] = "a1"
+    """Environment the collectors run."""
+    collectors: int = 2
+    """Number of collector processes."""
+    run_id: str = "default"
+    """Run id (topics and run directory)."""
+    runs_dir: str = "runs"
+    """Directory of run directories."""
+    host: str = "127.0.0.1"
+    """Address the router, dashboard and API bind to."""
+    router_port: int = 7447
+    dashboard_port: int = 8080
+    api_port: int = 8000
+    evaluator: bool = True
+    """Also start an evaluation collector (serves ``POST /evaluate``; feeds no replay)."""
+    dashboard: bool = True
+    api: bool = True
+    grace_s: float = 5.0
+    """Seconds between SIGTERM and SIGKILL at shutdown."""
+    extra: tuple[str, ...] = ()
+    """Extra arguments passed to every service (e.g. ``--core.collector.skill-period 100``)."""
+
+
+class Child:
+    def __init__(self, name: str, cmd: list[str], env: dict[str, str], color: str) -> None:
+        self.name = name
+        self.cmd = cmd
+        self.proc = subprocess.Popen(
+            cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, env=env,
+            start_new_session=True, bufsize=1, text=True,
+        )
+        self.color = color
+        self.ready = threading.Event()
+        self._thread = threading.Thread(target=self._pump, daemon=True)
+        self._thread.start()
+
+    def _pump(self) -> None:
+        assert self.proc.stdout is not None
+        tty = sys.stdout.isatty()
+        prefix = f"\033[{self.color}m{self.name:>12}\033[0m |" if tty else f"{self.name:>12} |"
+        out: IO[str] = sys.stdout
+        for line in self.proc.stdout:
+            if "READY" in line:
+                self.ready.set()
+            out.write(f"{prefix} {line}" if line.endswith("\n") else f"{prefix} {line}\n")
+            out.flush()
+
+    def signal(self, sig: int) -> None:
+        if self.proc.poll() is None:
+            try:
+                os.killpg(self.proc.pid, sig)
+            except ProcessLookupError:
+                pass
+
+
+def _wait_port(host: str, port: int, timeout: float) -> bool:
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        try:
+            with socket.create_connection((host, port), timeout=0.5):
+                return True
+        except OSError:
+            time.sleep(0.2)
+    return False
+
+
+def up(args: UpArgs) -> int:
+    """Run the stack until Ctrl-C/SIGTERM or until the router dies; returns an exit code."""
+    env = dict(os.environ)
+    env.setdefault("PYTHONUNBUFFERED", "1")
+    endpoint = f"tcp/{args.host}:{args.router_port}"
+    env["URSA_ROUTER"] = endpoint
+    env["URSA_ROUTER_LISTEN"] = endpoint
+    env["URSA_RUN_ID"] = args.run_id
+    env["URSA_RUNS_DIR"] = args.runs_dir
+    common = ["--preset", args.preset, "--env", args.env, *args.extra]
+    py = sys.executable
+    children: list[Child] = []
+    stopping = threading.Event()
+
+    def start(name: str, module: str, extra: list[str], with_common: bool = True) -> Child:
+        cmd = [py, "-m", module, *(common if with_common else []), *extra]
+        c = Child(name, cmd, env, _COLORS[len(children) % len(_COLORS)])
+        children.append(c)
+        return c
+
+    def shutdown(*_: object) -> None:
+        stopping.set()
+
+    signal.signal(signal.SIGINT, shutdown)
+    signal.signal(signal.SIGTERM, shutdown)
+
+    router = start("router", "services.router", ["--listen", endpoint], with_common=False)
+    if not _wait_port(args.host, args.router_port, 20.0):
+        print(f"router did not open {endpoint}", file=sys.stderr)
+        stopping.set()
+    else:
+        start("repertoire", "services.repertoire", [])
+        start("learner", "services.learner", [])
+        for i in range(args.collectors):
+            start(f"collector-{i}", "services.collector",
+                  ["--collector-id", f"c{i}", "--seed", str(i)])
+        if args.evaluator:
+            start("evaluator", "services.evaluator", ["--collector-id", "eval"])
+        if args.dashboard:
+            start("dashboard", "services.dashboard",
+                  ["--host", args.host, "--port", str(args.dashboard_port)])
+        if args.api:
+            start("api", "services.api", ["--host", args.host, "--port", str(args.api_port)])
+        shown = args.host if args.host not in ("0.0.0.0", "") else "localhost"
+        print(f"\nURSA is up (run {args.run_id}, preset {args.preset}, env {args.env}, "
+              f"{args.collectors} collectors)", flush=True)
+        if args.dashboard:
+            print(f"  dashboard: http://{shown}:{args.dashboard_port}", flush=True)
+        if args.api:
+            print(f"  HTTP API:  http://{shown}:{args.api_port}  (docs: /docs)", flush=True)
+        print(f"  router:    {endpoint}\n  run dir:   {args.runs_dir}/{args.run_id}\n"
+              "  Ctrl-C stops everything.\n", flush=True)
+
+    while not stopping.is_set():
+        if router.proc.poll() is not None:
+            print("router exited; stopping the stack", file=sys.stderr, flush=True)
+            break
+        stopping.wait(0.5)
+
+    # services first, router last, so that they can say goodbye over the bus
+    for c in reversed(children[1:]):
+        c.signal(signal.SIGTERM)
+    deadline = time.monotonic() + args.grace_s
+    for c in children[1:]:
+        try:
+            c.proc.wait(timeout=max(0.1, deadline - time.monotonic()))
+        except subprocess.TimeoutExpired:
+            pass
+    router.signal(signal.SIGTERM)
+    try:
+        router.proc.wait(timeout=2.0)
+    except subprocess.TimeoutExpired:
+        pass
+    for c in children:
+        c.signal(signal.SIGKILL)
+        try:
+            c.proc.wait(timeout=2.0)
+        except subprocess.TimeoutExpired:
+            pass
+    print("URSA stopped.", flush=True)
+    return 0

@@ -1,0 +1,1 @@
+"""URSA core: the algorithm and the simulation. Imports no zenoh, FastAPI or viser."""
