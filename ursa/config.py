@@ -10,21 +10,21 @@ import dataclasses
 from dataclasses import dataclass, field
 from typing import Literal
 
+from ursa.envs.a1 import A1Config
+from ursa.envs.base import ResetFreeEnv
+from ursa.envs.point import PointConfig
+from ursa.repertoire import RepertoireConfig
+
 PresetName = Literal["tiny", "small", "paper"]
+EnvName = Literal["a1", "point"]
 
-
-@dataclass(frozen=True)
-class EnvSpec:
-    """Which environment the collectors run."""
-
-    name: Literal["a1", "point"] = "a1"
-    """``a1``: the reset-free Unitree A1 in PyBullet; ``point``: the tiny point-mass arena."""
-    task: Literal["forward", "posture"] = "forward"
-    """A1 task (paper §5.2 forward, §5.3 posture); ignored by the point env."""
-    damage: str = ""
-    """Damage scenario of the A1 (e.g. ``front_upper``); empty for an intact robot."""
-    rescue: bool = True
-    """Right the A1 after a run of unsafe steps (a counted human intervention)."""
+#: Dimension of each provided feature function, by env (the learned one is ``vae``).
+PROVIDED_FEATURES: dict[str, dict[str, int]] = {
+    "a1": {"velocity": 2, "contacts": 4},
+    "point": {"position": 2},
+}
+VAE_INPUT_DIM = {"a1": 13}
+"""Size of the learned feature function's input (joint angles + base height on the A1)."""
 
 
 @dataclass(frozen=True)
@@ -39,8 +39,6 @@ class CollectorConfig:
     """How often a collector publishes its stats (joint angles for the live view included)."""
     violation_window: int = 1000
     """Steps in the sliding window of the safety-violation rate."""
-    prefill_random: bool = True
-    """Act uniformly at random until the first weights arrive (else the initial actor acts)."""
 
 
 @dataclass(frozen=True)
@@ -48,23 +46,73 @@ class Config:
     """Everything the algorithm needs; shared by every service."""
 
     preset: PresetName = "small"
-    """Which preset produced the sizes below (recorded for the run directory)."""
-    env: EnvSpec = field(default_factory=EnvSpec)
+    """Which preset produced the sizes below (recorded in the run directory)."""
+    env: EnvName = "a1"
+    """``a1``: the reset-free Unitree A1 in PyBullet; ``point``: the tiny point-mass arena."""
     feature: str = "vae"
     """Feature function phi: ``vae`` (learned, URSA) or the name of a provided feature of the env
-    (``velocity``, ``contacts`` on the A1; ``position`` on the point env)."""
+    (``velocity`` or ``contacts`` on the A1; ``position`` on the point env)."""
+    a1: A1Config = field(default_factory=A1Config)
+    """The A1 environment (task, damage, rescue, gains...)."""
+    point: PointConfig = field(default_factory=PointConfig)
+    """The point environment."""
     collector: CollectorConfig = field(default_factory=CollectorConfig)
+    repertoire: RepertoireConfig = field(default_factory=RepertoireConfig)
+
+    @property
+    def learned_feature(self) -> bool:
+        return self.feature == "vae"
+
+    @property
+    def feature_input_key(self) -> str:
+        """Key of ``info["features"]`` that collectors send as the feature input."""
+        return "vae_input" if self.learned_feature else self.feature
+
+    @property
+    def skill_dim(self) -> int:
+        return self.repertoire.dim
 
 
-def preset(name: PresetName, env: Literal["a1", "point"] | None = None) -> Config:
-    """The config of a preset (optionally on another env)."""
-    cfg = Config(preset=name)
-    if name == "tiny":
-        cfg = dataclasses.replace(
-            cfg, collector=dataclasses.replace(cfg.collector, skill_period=100, chunk_len=25)
-        )
-    if env is not None:
-        cfg = dataclasses.replace(cfg, env=dataclasses.replace(cfg.env, name=env))
-    if cfg.env.name == "point" and cfg.feature == "vae":
-        cfg = dataclasses.replace(cfg, feature="position")
-    return cfg
+_REPERTOIRE_SIZE = {"tiny": 300, "small": 2000, "paper": 5000}
+_SKILL_PERIOD = {"tiny": 100, "small": 250, "paper": 250}
+
+
+def with_feature(cfg: Config, feature: str) -> Config:
+    """Set the feature function and the repertoire dimensions that follow from it."""
+    if feature == "vae":
+        if cfg.env not in VAE_INPUT_DIM:
+            raise ValueError(f"the learned feature function needs the A1, not {cfg.env!r}")
+        rep = dataclasses.replace(cfg.repertoire, dim=3, input_dim=VAE_INPUT_DIM[cfg.env])
+    else:
+        dims = PROVIDED_FEATURES[cfg.env]
+        if feature not in dims:
+            raise ValueError(f"env {cfg.env!r} provides {sorted(dims)}, not {feature!r}")
+        rep = dataclasses.replace(cfg.repertoire, dim=dims[feature], input_dim=None)
+    return dataclasses.replace(cfg, feature=feature, repertoire=rep)
+
+
+def preset(name: PresetName, env: EnvName | None = None, feature: str | None = None) -> Config:
+    """The config of a preset, on ``env`` (default a1) with ``feature`` (default: vae on the
+    A1, position on the point env)."""
+    env_name: EnvName = env or "a1"
+    cfg = Config(
+        preset=name,
+        env=env_name,
+        collector=CollectorConfig(skill_period=_SKILL_PERIOD[name],
+                                  chunk_len=25 if name == "tiny" else 50),
+        repertoire=RepertoireConfig(size=_REPERTOIRE_SIZE[name]),
+    )
+    return with_feature(cfg, feature or ("vae" if env_name == "a1" else "position"))
+
+
+def build_env(cfg: Config, seed: int = 0, damage: str | None = None) -> ResetFreeEnv:
+    """The environment a collector (or the evaluator) runs; ``damage`` overrides the config's
+    damage scenario (empty string: intact)."""
+    if cfg.env == "a1":
+        from ursa.envs.a1 import A1Env
+
+        a1 = cfg.a1 if damage is None else dataclasses.replace(cfg.a1, damage=damage or None)
+        return A1Env(a1, seed=seed)
+    from ursa.envs.point import PointEnv
+
+    return PointEnv(cfg.point, seed=seed)

@@ -3,7 +3,8 @@
 Consumes: policy weights (``learner/weights``), skills from the repertoire (``repertoire/sample``).
 Produces: transition chunks (``collector/transitions/{cid}``), features of safe states
 (``collector/features/{cid}``), stats (``collector/stats/{cid}``), a liveliness token.
-Run alone: ``python -m services.collector --preset small --collector-id c0 --bus.router tcp/127.0.0.1:7447``
+Run alone:
+``python -m services.collector --preset small --collector-id c0 --bus.router tcp/127.0.0.1:7447``
 (it acts with its initial policy until weights arrive and keeps a zero skill until the
 repertoire answers).
 """

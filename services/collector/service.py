@@ -26,8 +26,7 @@ from proto import ursa_pb2 as pb
 from services.common.bus import publisher, query_one, safe_handler
 from services.common.config import BusConfig, RunConfig, save_resolved
 from services.common.runtime import ServiceRuntime
-from ursa.config import Config
-from ursa.envs import make_env
+from ursa.config import Config, build_env
 
 
 def default_collector_id() -> str:
@@ -67,16 +66,14 @@ class Collector:
         self.incarnation = self._next_incarnation()
         save_resolved(args, args.run, f"collector-{self.cid}")
 
-        env_kwargs: dict[str, Any] = {}
-        if self.cfg.env.name == "a1":
-            env_kwargs = {"task": self.cfg.env.task, "damage": self.cfg.env.damage or None,
-                          "rescue": self.cfg.env.rescue}
-        self.env = make_env(self.cfg.env.name, seed=args.seed, **env_kwargs)
-        self.feature_key = "vae_input" if self.cfg.feature == "vae" else self.cfg.feature
+        self.env = build_env(self.cfg, seed=args.seed)
+        self.feature_key = self.cfg.feature_input_key
         if self.feature_key not in self.env.feature_dims:
-            raise SystemExit(f"env {self.cfg.env.name} has no feature {self.feature_key!r}; "
+            raise SystemExit(f"env {self.cfg.env} has no feature {self.feature_key!r}; "
                              f"it has {sorted(self.env.feature_dims)}")
-        self.skill_dim = self._skill_dim()
+        self.skill_dim = self.cfg.skill_dim
+        self.task = self.cfg.a1.task if self.cfg.env == "a1" else "point"
+        self.damage = (self.cfg.a1.damage or "") if self.cfg.env == "a1" else ""
         self.rng = np.random.default_rng(args.seed + 7919 * self.incarnation)
 
         self.pub_chunks = publisher(self.rt.session, t.transitions(self.cid), reliable=True)
@@ -100,11 +97,6 @@ class Collector:
         self.last_info: dict[str, Any] = {}
 
     # ---- setup helpers -------------------------------------------------------------------
-    def _skill_dim(self) -> int:
-        if self.cfg.feature == "vae":
-            return 3
-        return int(self.env.feature_dims[self.feature_key])
-
     def _next_incarnation(self) -> int:
         path = self.args.run.dir / "collectors" / f"{self.cid}.json"
         path.parent.mkdir(parents=True, exist_ok=True)
@@ -159,11 +151,12 @@ class Collector:
     def run(self) -> None:
         cfg = self.cfg.collector
         obs, _ = self.env.reset(seed=self.args.seed)
-        existing = query_one(self.rt.session, self.rt.topics.weights, pb.PolicyWeights, timeout_s=1.0)
+        t = self.rt.topics
+        existing = query_one(self.rt.session, t.weights, pb.PolicyWeights, timeout_s=1.0)
         if existing is not None:
-            self._on_weights(existing, self.rt.topics.weights)
-        buf: dict[str, list[Any]] = {k: [] for k in
-                                     ("obs", "action", "reward", "cost", "safe", "features", "skill")}
+            self._on_weights(existing, t.weights)
+        fields = ("obs", "action", "reward", "cost", "safe", "features", "skill")
+        buf: dict[str, list[Any]] = {k: [] for k in fields}
         chunk_first_step = 0
         last_stats = 0.0
         stats_period = 1.0 / cfg.stats_hz
@@ -229,8 +222,7 @@ class Collector:
         msg = pb.TransitionChunk(
             header=self.rt.header(), collector_id=self.cid, seq=self.seq, first_step=first_step,
             policy_version=self.policy_version, incarnation=self.incarnation,
-            task=self.cfg.env.task if self.cfg.env.name == "a1" else self.cfg.env.name,
-            damage=self.cfg.env.damage,
+            task=self.task, damage=self.damage,
             **{k: codec.to_array(v) for k, v in arr.items()},
         )
         self.pub_chunks.put(codec.encode(msg))
@@ -260,8 +252,8 @@ class Collector:
                 "policy_version": self.policy_version,
                 "incarnation": self.incarnation,
             },
-            labels={"env": self.cfg.env.name, "task": self.cfg.env.task,
-                    "damage": self.cfg.env.damage or "none", "skill_source": self.skill_source},
+            labels={"env": self.cfg.env, "task": self.task, "damage": self.damage or "none",
+                    "skill_source": self.skill_source},
             arrays=arrays,
         )
 

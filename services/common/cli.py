@@ -18,39 +18,45 @@ T = TypeVar("T")
 PRESETS: tuple[PresetName, ...] = ("tiny", "small", "paper")
 
 
-def split_preset(argv: Sequence[str]) -> tuple[PresetName, str | None, list[str]]:
-    """Take ``--preset NAME`` and ``--env NAME`` out of argv (they pick the defaults)."""
-    name: str = os.environ.get("URSA_PRESET", "small")
-    env: str | None = os.environ.get("URSA_ENV") or None
+_PICKERS = ("--preset", "--env", "--feature")
+
+
+def split_preset(argv: Sequence[str]) -> tuple[dict[str, str | None], list[str]]:
+    """Take ``--preset``, ``--env`` and ``--feature`` out of argv: they pick the defaults of
+    every other field (env vars URSA_PRESET, URSA_ENV, URSA_FEATURE)."""
+    picked: dict[str, str | None] = {
+        "preset": os.environ.get("URSA_PRESET", "small"),
+        "env": os.environ.get("URSA_ENV") or None,
+        "feature": os.environ.get("URSA_FEATURE") or None,
+    }
     rest: list[str] = []
     it = iter(argv)
     for a in it:
-        if a in ("--preset", "--env"):
-            val = next(it, None)
-            if val is None:
-                raise SystemExit(f"{a} needs a value")
-            if a == "--preset":
-                name = val
-            else:
-                env = val
-        elif a.startswith("--preset="):
-            name = a.split("=", 1)[1]
-        elif a.startswith("--env="):
-            env = a.split("=", 1)[1]
+        flag, _, val = a.partition("=")
+        if flag in _PICKERS:
+            if not val:
+                val = next(it, "")
+                if not val:
+                    raise SystemExit(f"{flag} needs a value")
+            picked[flag[2:]] = val
         else:
             rest.append(a)
-    if name not in PRESETS:
-        raise SystemExit(f"unknown preset {name!r}; choose one of {', '.join(PRESETS)}")
-    if env is not None and env not in ("a1", "point"):
-        raise SystemExit(f"unknown env {env!r}; choose a1 or point")
-    return name, env, rest  # type: ignore[return-value]
+    if picked["preset"] not in PRESETS:
+        raise SystemExit(f"unknown preset {picked['preset']!r}; choose one of {', '.join(PRESETS)}")
+    if picked["env"] not in (None, "a1", "point"):
+        raise SystemExit(f"unknown env {picked['env']!r}; choose a1 or point")
+    return picked, rest
 
 
 def parse(cls: type[T], argv: Sequence[str] | None = None, description: str | None = None) -> T:
     """Parse a service config whose ``core`` field defaults to the chosen preset."""
     args = list(sys.argv[1:] if argv is None else argv)
-    name, env, rest = split_preset(args)
-    default: Any = cls(core=preset(name, env))  # type: ignore[call-arg]
+    picked, rest = split_preset(args)
+    try:
+        core = preset(picked["preset"], picked["env"], picked["feature"])  # type: ignore[arg-type]
+    except ValueError as e:
+        raise SystemExit(str(e)) from e
+    default: Any = cls(core=core)  # type: ignore[call-arg]
     return tyro.cli(cls, default=default, args=rest, description=description)
 
 

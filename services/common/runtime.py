@@ -30,7 +30,7 @@ class ServiceRuntime:
         self.drops = DropCounter()
         self.session: zenoh.Session = open_session(bus)
         self._token = self.session.liveliness().declare_token(self.topics.alive(service, sid))
-        key = self.topics.collector_stats(sid) if service == "collector" else self.topics.stats(service)
+        key = self.topics.stats(service, sid)
         self._stats_pub = publisher(self.session, key, reliable=False)
         self.started = time.time()
         self.stop = threading.Event()

@@ -11,7 +11,6 @@ Liveliness:  ursa/{run}/alive/repertoire/main
 
 from __future__ import annotations
 
-import os
 import queue
 import threading
 import time
@@ -100,7 +99,6 @@ class RepertoireService:
         feats = codec.from_array(msg.features)
         want = self.cfg.repertoire.input_dim if self.learned else self.cfg.repertoire.dim
         if feats.ndim != 2 or (want and feats.shape[1] != want):
-            self.rt.drops.add("wrong_dim")
             raise codec.BadMessage(f"features of shape {feats.shape}, expected (N, {want})")
         self.inbox.put(np.asarray(feats, np.float32))
 

@@ -1,0 +1,194 @@
+"""Actor, critics, Lagrange multipliers and the math of URSA's imagination training (§3.1, §4.1).
+
+- ``Actor``: π(a | s, z), a tanh-squashed Gaussian over [−1, 1]^A.
+- ``TwoHotCritic``: V(s, z) on the reward and C(s, z) on the cost (two-hot over symexp bins).
+- ``SFCritic``: the successor features in discounted-average units, m(s, z) = (1 − γ) ψ(s, z),
+  parameterised as z + MLP(s, z) (see docs/learner.md).
+- ``Multiplier``: λ_i(s, z) = sigmoid(MLP(s, z)).
+- Pure functions: :func:`lambda_return`, :func:`mahalanobis`, :func:`actor_objective`,
+  :func:`percentile_update`.
+"""
+
+from __future__ import annotations
+
+import torch
+from torch import nn
+
+from ursa.distributions import tanh_normal_sample, two_hot_loss, two_hot_mean
+from ursa.learner_config import LearnerConfig
+from ursa.networks import MLP
+
+
+def lambda_return(
+    reward: torch.Tensor, value: torch.Tensor, discount: float, lam: float
+) -> torch.Tensor:
+    """TD(λ) returns (H, ...) of an imagined rollout.
+
+    reward (H, ...): reward[t] is received on the step s_t -> s_{t+1}; value (H+1, ...):
+    value[t] estimates the return from s_t. ``R_H = value[H]`` and
+    ``R_t = reward[t] + γ · ((1 − λ) · value[t+1] + λ · R_{t+1})``.
+    """
+    horizon = reward.shape[0]
+    out = []
+    ret = value[horizon]
+    for t in reversed(range(horizon)):
+        ret = reward[t] + discount * ((1.0 - lam) * value[t + 1] + lam * ret)
+        out.append(ret)
+    return torch.stack(out[::-1])
+
+
+def mahalanobis(x: torch.Tensor, whiten: torch.Tensor, eps: float = 1e-8) -> torch.Tensor:
+    """‖x‖_Σ (...) of differences x (..., D), with ``whiten`` A (D, D) such that A Σ Aᵀ = I.
+
+    ``eps`` inside the square root keeps the gradient finite at 0.
+    """
+    y = x @ whiten.T
+    return torch.sqrt(y.pow(2).sum(-1) + eps)
+
+
+def actor_objective(
+    value: torch.Tensor,
+    distance: torch.Tensor,
+    delta: float | torch.Tensor,
+    cost: torch.Tensor,
+    lam1: torch.Tensor,
+    lam2: torch.Tensor,
+) -> torch.Tensor:
+    """J_π = (1−λ1)(1−λ2)·V − λ1(1−λ2)·(‖(1−γ)ψ − z‖ − δ) − λ2·C (paper §4.1), elementwise.
+
+    value, distance, cost, lam1, lam2: same shape (...); each term arrives already normalised.
+    """
+    return (
+        (1.0 - lam1) * (1.0 - lam2) * value
+        - lam1 * (1.0 - lam2) * (distance - delta)
+        - lam2 * cost
+    )
+
+
+def percentile_update(
+    low: torch.Tensor, high: torch.Tensor, x: torch.Tensor, rate: float
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """EMA update of the 5th and 95th percentiles of x (any shape): returns (low', high')."""
+    flat = x.detach().flatten().float()
+    q = torch.quantile(flat, torch.tensor([0.05, 0.95], device=flat.device))
+    return (1.0 - rate) * low + rate * q[0], (1.0 - rate) * high + rate * q[1]
+
+
+class ReturnNorm(nn.Module):
+    """DreamerV3 return normalisation: scale = max(limit, EMA(P95) − EMA(P5))."""
+
+    low: torch.Tensor
+    high: torch.Tensor
+
+    def __init__(self, rate: float, limit: float) -> None:
+        super().__init__()
+        self.rate, self.limit = rate, limit
+        self.register_buffer("low", torch.zeros(()))
+        self.register_buffer("high", torch.zeros(()))
+
+    def update(self, x: torch.Tensor) -> None:
+        """Fold the batch of returns x (any shape) into the percentile EMAs."""
+        low, high = percentile_update(self.low, self.high, x, self.rate)
+        self.low.copy_(low)
+        self.high.copy_(high)
+
+    def scale(self) -> torch.Tensor:
+        """The divisor () of the returns."""
+        return torch.clamp(self.high - self.low, min=self.limit)
+
+
+class Actor(nn.Module):
+    """π(a | s, z): tanh of a Gaussian with std in [min_std, max_std]; mean 0 and a wide std at
+    initialisation, so the untrained actor acts at random (and tanh(mean) = 0 in eval mode)."""
+
+    def __init__(self, config: LearnerConfig, feat_dim: int, skill_dim: int, act_dim: int) -> None:
+        super().__init__()
+        self.min_std, self.max_std = config.actor_min_std, config.actor_max_std
+        self.act_dim = act_dim
+        self.mlp = MLP(feat_dim + skill_dim, 2 * act_dim, config.units, config.layers, zero_out=True)
+
+    def forward(self, feat: torch.Tensor, skill: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """(..., F), (..., D) -> pre-tanh mean and std (..., A)."""
+        mean, raw = self.mlp(torch.cat([feat, skill], -1)).chunk(2, -1)
+        std = (self.max_std - self.min_std) * torch.sigmoid(raw + 2.0) + self.min_std
+        return mean, std
+
+    def sample(
+        self, feat: torch.Tensor, skill: torch.Tensor, generator: torch.Generator | None
+    ) -> tuple[torch.Tensor, torch.Tensor]:
+        """Reparameterised action (..., A) and its log-density (...)."""
+        mean, std = self(feat, skill)
+        return tanh_normal_sample(mean, std, generator)
+
+    def mode(self, feat: torch.Tensor, skill: torch.Tensor) -> torch.Tensor:
+        """Deterministic action tanh(mean) (..., A)."""
+        return torch.tanh(self(feat, skill)[0])
+
+
+class TwoHotCritic(nn.Module):
+    """A scalar critic over (s, z) with a two-hot output (V on the reward, C on the cost)."""
+
+    bins: torch.Tensor
+
+    def __init__(
+        self, config: LearnerConfig, feat_dim: int, skill_dim: int, bins: torch.Tensor
+    ) -> None:
+        super().__init__()
+        self.mlp = MLP(feat_dim + skill_dim, config.bins, config.units, config.layers, zero_out=True)
+        self.register_buffer("bins", bins.clone(), persistent=False)
+
+    def logits(self, feat: torch.Tensor, skill: torch.Tensor) -> torch.Tensor:
+        """(..., F), (..., D) -> logits (..., K)."""
+        return self.mlp(torch.cat([feat, skill], -1))
+
+    def forward(self, feat: torch.Tensor, skill: torch.Tensor) -> torch.Tensor:
+        """Expected value (...)."""
+        return two_hot_mean(self.logits(feat, skill), self.bins)
+
+    def loss(self, feat: torch.Tensor, skill: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
+        """Two-hot cross-entropy (...) against the target returns (...)."""
+        return two_hot_loss(self.logits(feat, skill), target, self.bins)
+
+
+class SFCritic(nn.Module):
+    """m(s, z) = (1 − γ) ψ(s, z) (..., D), regressed per dimension (squared error).
+
+    Predicting the discounted *average* keeps the output on the features' own scale whatever γ;
+    the residual form m = z + MLP(s, z) makes "the skill is achieved" the initial guess, so the
+    network only has to learn the offset, which is small wherever the skill is executed.
+    """
+
+    def __init__(self, config: LearnerConfig, feat_dim: int, skill_dim: int) -> None:
+        super().__init__()
+        self.mlp = MLP(feat_dim + skill_dim, skill_dim, config.units, config.layers, zero_out=True)
+
+    def forward(self, feat: torch.Tensor, skill: torch.Tensor) -> torch.Tensor:
+        """(..., F), (..., D) -> (..., D)."""
+        return skill + self.mlp(torch.cat([feat, skill], -1))
+
+    def loss(self, feat: torch.Tensor, skill: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
+        """Squared error (...) summed over D against target (..., D)."""
+        return (self(feat, skill) - target.detach()).pow(2).sum(-1)
+
+
+class Multiplier(nn.Module):
+    """λ(s, z) = sigmoid(MLP(s, z)), one hidden layer; 0.5 at initialisation."""
+
+    def __init__(self, config: LearnerConfig, feat_dim: int, skill_dim: int) -> None:
+        super().__init__()
+        self.mlp = MLP(feat_dim + skill_dim, 1, config.lagrange_units, 1, zero_out=True)
+
+    def logit(self, feat: torch.Tensor, skill: torch.Tensor) -> torch.Tensor:
+        """(..., F), (..., D) -> logit (...)."""
+        return self.mlp(torch.cat([feat, skill], -1)).squeeze(-1)
+
+    def forward(self, feat: torch.Tensor, skill: torch.Tensor) -> torch.Tensor:
+        """λ in (0, 1) (...)."""
+        return torch.sigmoid(self.logit(feat, skill))
+
+    def loss(self, feat: torch.Tensor, skill: torch.Tensor, violated: torch.Tensor) -> torch.Tensor:
+        """Binary cross-entropy (...) on the logits: λ rises where ``violated`` (...) is 1 and
+        falls where it is 0 (QDAC)."""
+        return nn.functional.binary_cross_entropy_with_logits(
+            self.logit(feat, skill), violated.detach().to(feat.dtype), reduction="none"
+        )

@@ -1,0 +1,564 @@
+"""Reset-free Unitree A1 in PyBullet with the URSA paper's tasks, safe set, features and damage.
+
+The A1 (``pybullet_data/a1/a1.urdf``) stands on a plane. Physics runs at ``physics_hz``
+(default 500 Hz); a PD controller, computed in Python as joint torques at every physics substep
+(as motion_imitation and DayDreamer do), tracks joint targets that the policy sets at
+``control_hz`` (20 Hz). The simulation is never reset after construction; see ``ursa.envs.base``.
+
+Joint order (12): legs FR, FL, RR, RL (front-right, front-left, rear-right, rear-left), each
+(hip, upper, lower) = (abduction, thigh, calf); see ``JOINT_NAMES``.
+
+Observation layout (46,) float32, also given as slices by ``OBS_LAYOUT``:
+
+====  ================  ===  ===========================================================
+ idx  name              dim  content
+====  ================  ===  ===========================================================
+0:12  joint_pos          12  joint angles (rad)
+12:24 joint_vel          12  joint velocities (rad/s)
+24:27 gravity            3   unit gravity direction in the base frame ((0, 0, -1) upright)
+27:30 base_ang_vel       3   base angular velocity in the base frame (rad/s)
+30:33 base_lin_vel       3   base linear velocity in the base frame (m/s)
+33:34 base_height        1   base (trunk centre of mass) height above the ground (m)
+34:46 prev_action        12  the previous (clipped) action in [-1, 1]
+====  ================  ===  ===========================================================
+
+Action (12,) in [-1, 1]: joint targets. ``stand_centered`` mapping (default): 0 is the
+standing pose, -1 and +1 the ends of ``[joint_low, joint_high]``, piecewise linear in between;
+``linear`` mapping (DayDreamer): -1..1 maps linearly onto ``[joint_low, joint_high]``.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from itertools import chain
+from operator import itemgetter, mul
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+import pybullet as pb
+import pybullet_data
+
+from ursa.envs import tasks
+
+JOINT_NAMES: tuple[str, ...] = tuple(
+    f"{leg}_{part}_joint" for leg in ("FR", "FL", "RR", "RL") for part in ("hip", "upper", "lower")
+)
+"""The 12 actuated joints in observation/action order."""
+FOOT_LINKS: tuple[str, ...] = ("FR_toe", "FL_toe", "RR_toe", "RL_toe")
+"""Foot links in the order of the ``contacts`` feature."""
+
+OBS_LAYOUT: dict[str, slice] = {
+    "joint_pos": slice(0, 12),
+    "joint_vel": slice(12, 24),
+    "gravity": slice(24, 27),
+    "base_ang_vel": slice(27, 30),
+    "base_lin_vel": slice(30, 33),
+    "base_height": slice(33, 34),
+    "prev_action": slice(34, 46),
+}
+"""Slices of the observation vector; see the module docstring."""
+OBS_DIM = 46
+ACT_DIM = 12
+FEATURE_DIMS: dict[str, int] = {"vae_input": 13, "velocity": 2, "contacts": 4}
+"""Features in ``info["features"]``: ``vae_input`` = 12 joint angles + base height (input of the
+learned VAE feature function), ``velocity`` = (forward velocity in the heading frame, yaw rate),
+``contacts`` = FR, FL, RR, RL foot touching the ground (0/1)."""
+
+DAMAGE_SCENARIOS: dict[str, tuple[int, ...]] = {
+    "front_hip": (0,),
+    "front_upper": (1,),
+    "front_lower": (2,),
+    "back_hip": (6,),
+    "back_upper": (7,),
+    "back_lower": (8,),
+}
+"""The six damage scenarios of §5.2: one frozen joint on the front-right (FR) or rear-right (RR)
+leg. Values are indices into ``JOINT_NAMES``."""
+
+_pos = itemgetter(0)
+_vel = itemgetter(1)
+_FOOT_RADIUS = 0.02  # collision sphere of the toe links in a1.urdf
+_FREEZE_FORCE = 1000.0  # N·m; far above what gravity and the other motors can apply
+
+
+@dataclass(frozen=True)
+class A1Config:
+    """Settings of the reset-free A1 environment (see ``docs/env.md`` for the choices)."""
+
+    task: str = "forward"
+    """Reward/cost/safe set: ``forward`` (§5.2) or ``posture`` (§5.3)."""
+    physics_hz: int = 500
+    """Physics rate (Hz); must be a multiple of ``control_hz``. DayDreamer used 1000."""
+    control_hz: int = 20
+    """Rate at which the policy sets joint targets (Hz); the paper's 20 Hz."""
+    kp: tuple[float, float, float] = (100.0, 100.0, 100.0)
+    """PD proportional gains (N·m/rad) for (hip, upper, lower), as in motion_imitation."""
+    kd: tuple[float, float, float] = (1.0, 2.0, 2.0)
+    """PD derivative gains (N·m·s/rad) for (hip, upper, lower), as in motion_imitation."""
+    torque_limit: float = 33.5
+    """Symmetric torque limit of every motor (N·m), motion_imitation's A1 motor limit."""
+    standing_pose: tuple[float, float, float] = (0.0, 0.9, -1.8)
+    """Standing joint angles (rad) for (hip, upper, lower), motion_imitation's initial pose."""
+    joint_low: tuple[float, float, float] = (-0.8, -1.0, -2.68)
+    """Lower end of the commandable joint range (rad) for (hip, upper, lower)."""
+    joint_high: tuple[float, float, float] = (0.8, 2.8, -0.92)
+    """Upper end of the commandable joint range (rad) for (hip, upper, lower)."""
+    action_mapping: str = "stand_centered"
+    """``stand_centered`` (0 = standing pose) or ``linear`` (DayDreamer: onto [low, high])."""
+    action_filter_hz: float | None = None
+    """Cut-off (Hz) of a 2nd-order Butterworth low-pass on the joint targets; None: off.
+    DayDreamer used 1.5 Hz; off by default because its state is not in the observation."""
+    target_speed: float = 0.3
+    """Speed (m/s) at which r_velx saturates at 1 and r_vely at 1 (DayDreamer's 0.3)."""
+    yaw_rate_scale: float = 1.0
+    """Yaw rate (rad/s) at which r_yaw saturates at 1."""
+    rescue: bool = True
+    """Right the robot in place after ``rescue_after`` consecutive unsafe steps."""
+    rescue_after: int = 50
+    """Consecutive unsafe control steps (2.5 s at 20 Hz) before a rescue."""
+    rescue_on: str = "unsafe"
+    """What counts towards a rescue: ``unsafe`` (the task's safe flag) or ``fallen``
+    (r_upr <= 0.7, the same as ``unsafe`` for the forward task)."""
+    frozen_joints: tuple[int, ...] = ()
+    """Indices into ``JOINT_NAMES`` frozen at their initial (standing) angle."""
+    damage: str | None = None
+    """Name of a ``DAMAGE_SCENARIOS`` preset, added to ``frozen_joints``."""
+    init_yaw: float | None = None
+    """Initial heading (rad); None: drawn uniformly from the seed."""
+    settle_steps: int = 40
+    """Control steps of standing still simulated at construction (not counted), long enough
+    for the fore-aft rocking after the drop onto the feet to die out (about 2 s)."""
+    self_collision: bool = False
+    """Enable collisions between the robot's own links (off in motion_imitation by default)."""
+
+    def __post_init__(self) -> None:
+        if self.task not in tasks.TASKS:
+            raise ValueError(f"task must be one of {tasks.TASKS}, got {self.task!r}")
+        if self.physics_hz % self.control_hz != 0 or self.physics_hz < 500:
+            raise ValueError("physics_hz must be >= 500 and a multiple of control_hz")
+        if self.action_mapping not in ("stand_centered", "linear"):
+            raise ValueError(f"unknown action_mapping {self.action_mapping!r}")
+        if self.rescue_on not in ("unsafe", "fallen"):
+            raise ValueError(f"unknown rescue_on {self.rescue_on!r}")
+        if self.damage is not None and self.damage not in DAMAGE_SCENARIOS:
+            raise ValueError(f"damage must be one of {sorted(DAMAGE_SCENARIOS)} or None")
+        if any(not 0 <= j < 12 for j in self.frozen_joints):
+            raise ValueError("frozen_joints are indices in 0..11")
+        for lo, st, hi in zip(self.joint_low, self.standing_pose, self.joint_high, strict=True):
+            if not lo < st < hi:
+                raise ValueError("need joint_low < standing_pose < joint_high per joint type")
+        if self.rescue_after < 1:
+            raise ValueError("rescue_after must be >= 1")
+
+
+def butterworth2(cutoff_hz: float, sample_hz: float) -> tuple[np.ndarray, np.ndarray]:
+    """Coefficients (b (3,), a (3,), a[0] = 1) of a 2nd-order Butterworth low-pass (bilinear)."""
+    k = math.tan(math.pi * cutoff_hz / sample_hz)
+    norm = 1.0 / (1.0 + math.sqrt(2.0) * k + k * k)
+    b0 = k * k * norm
+    b = np.array([b0, 2.0 * b0, b0])
+    a = np.array([1.0, 2.0 * (k * k - 1.0) * norm, (1.0 - math.sqrt(2.0) * k + k * k) * norm])
+    return b, a
+
+
+class A1Env(gym.Env[np.ndarray, np.ndarray]):
+    """Reset-free A1; see the module docstring. Implements ``ursa.envs.base.ResetFreeEnv``.
+
+    Each PyBullet instance is its own DIRECT client, so many envs can live in one process.
+    """
+
+    obs_dim = OBS_DIM
+    act_dim = ACT_DIM
+    feature_dims: dict[str, int]
+    """Dimension of each feature in ``info["features"]`` (a copy of ``FEATURE_DIMS``)."""
+
+    def __init__(self, config: A1Config | None = None, seed: int = 0) -> None:
+        self.config = c = config or A1Config()
+        self.feature_dims = dict(FEATURE_DIMS)
+        self.observation_space = gym.spaces.Box(-np.inf, np.inf, (OBS_DIM,), np.float32)
+        self.action_space = gym.spaces.Box(-1.0, 1.0, (ACT_DIM,), np.float32)
+        self._rng = np.random.default_rng(seed)
+        self._dt = 1.0 / c.physics_hz
+        self._substeps = c.physics_hz // c.control_hz
+
+        self._stand = np.tile(np.asarray(c.standing_pose, dtype=np.float64), 4)
+        self._low = np.tile(np.asarray(c.joint_low, dtype=np.float64), 4)
+        self._high = np.tile(np.asarray(c.joint_high, dtype=np.float64), 4)
+        self._kp = np.tile(np.asarray(c.kp, dtype=np.float64), 4)
+        self._kd = np.tile(np.asarray(c.kd, dtype=np.float64), 4)
+        self._span_up = self._high - self._stand
+        self._span_down = self._stand - self._low
+        if c.action_mapping == "linear":
+            self._stand_action = 2.0 * (self._stand - self._low) / (self._high - self._low) - 1.0
+        else:
+            self._stand_action = np.zeros(ACT_DIM)
+
+        self._cid = cid = pb.connect(pb.DIRECT)
+        self._closed = False
+        pb.setGravity(0.0, 0.0, -9.8, physicsClientId=cid)
+        pb.setTimeStep(self._dt, physicsClientId=cid)
+        data = pybullet_data.getDataPath()
+        self._plane = pb.loadURDF(f"{data}/plane.urdf", physicsClientId=cid)
+        flags = pb.URDF_USE_INERTIA_FROM_FILE
+        if c.self_collision:
+            flags |= pb.URDF_USE_SELF_COLLISION
+        self._robot = robot = pb.loadURDF(
+            f"{data}/a1/a1.urdf", [0.0, 0.0, 1.0], flags=flags, physicsClientId=cid
+        )
+        by_name = {
+            pb.getJointInfo(robot, i, physicsClientId=cid)[1].decode(): i
+            for i in range(pb.getNumJoints(robot, physicsClientId=cid))
+        }
+        links = {
+            pb.getJointInfo(robot, i, physicsClientId=cid)[12].decode(): i
+            for i in range(pb.getNumJoints(robot, physicsClientId=cid))
+        }
+        self._joint_ids = [by_name[n] for n in JOINT_NAMES]
+        self._foot_ids = [links[n] for n in FOOT_LINKS]
+        self._foot_slot = {link: k for k, link in enumerate(self._foot_ids)}
+        # Disable the default velocity motors so that only our PD torques drive the joints.
+        pb.setJointMotorControlArray(
+            robot, self._joint_ids, pb.VELOCITY_CONTROL, forces=[0.0] * 12, physicsClientId=cid
+        )
+
+        # Standing height from the kinematics: base at z=1, standing joints, lowest foot.
+        for j, q in zip(self._joint_ids, self._stand, strict=True):
+            pb.resetJointState(robot, j, float(q), 0.0, physicsClientId=cid)
+        feet_z = [pb.getLinkState(robot, f, physicsClientId=cid)[0][2] for f in self._foot_ids]
+        self._stand_height = 1.0 - min(feet_z) + _FOOT_RADIUS + 0.005
+
+        self._frozen: dict[int, float] = {}
+        self._active: list[int] = list(range(12))
+        self._refresh_active()
+
+        self._filter_b: np.ndarray | None = None
+        self._filter_a: np.ndarray | None = None
+        if c.action_filter_hz is not None:
+            self._filter_b, self._filter_a = butterworth2(c.action_filter_hz, c.control_hz)
+        self._reset_filter()
+
+        self._prev_action = self._stand_action.copy()
+        self._steps = 0
+        self._reset_calls = 0
+        self._rescues = 0
+        self._unsafe_run = 0
+
+        yaw = c.init_yaw if c.init_yaw is not None else float(self._rng.uniform(-np.pi, np.pi))
+        self._place_standing(0.0, 0.0, yaw)
+        frozen = set(c.frozen_joints)
+        if c.damage is not None:
+            frozen.update(DAMAGE_SCENARIOS[c.damage])
+        for j in sorted(frozen):
+            self.freeze_joint(j)
+        for _ in range(c.settle_steps):
+            self._simulate(self._stand)
+        self._read_state()
+
+    # ------------------------------------------------------------------ simulation
+
+    def _refresh_active(self) -> None:
+        self._active = [i for i in range(12) if i not in self._frozen]
+        self._act_ids = [self._joint_ids[i] for i in self._active]
+        self._act_kp = self._kp[self._active].tolist()
+        self._act_kd = self._kd[self._active].tolist()
+
+    def _reset_filter(self) -> None:
+        # history of targets (x) and outputs (y), newest first, at the standing pose's steady state
+        self._fx = [self._stand.copy(), self._stand.copy()]
+        self._fy = [self._stand.copy(), self._stand.copy()]
+
+    def _simulate(self, joint_targets: np.ndarray) -> float:
+        """Run one control step of PD torque control; returns r_work (J) of the step.
+
+        ``joint_targets`` (12,) in rad; frozen joints' entries are ignored. This loop is the
+        env's hot path: one getJointStates, one setJointMotorControlArray and one
+        stepSimulation per substep.
+        """
+        cid, robot, ids = self._cid, self._robot, self._act_ids
+        active = self._active
+        targets = joint_targets.tolist() if len(active) == 12 else joint_targets[active].tolist()
+        kp, kd, lim = self._act_kp, self._act_kd, self.config.torque_limit
+        get_states, set_control, step_sim = (
+            pb.getJointStates,
+            pb.setJointMotorControlArray,
+            pb.stepSimulation,
+        )
+        torque_mode = pb.TORQUE_CONTROL
+        if not ids:  # every joint frozen: nothing to control
+            for _ in range(self._substeps):
+                step_sim(physicsClientId=cid)
+            return 0.0
+        taus: list[list[float]] = []
+        states: list[Any] = []
+        for _ in range(self._substeps):
+            st = get_states(robot, ids, physicsClientId=cid)
+            tau = [
+                min(max(p * (t - s[0]) - d * s[1], -lim), lim)
+                for p, d, t, s in zip(kp, kd, targets, st, strict=True)
+            ]
+            set_control(robot, ids, torque_mode, forces=tau, physicsClientId=cid)
+            step_sim(physicsClientId=cid)
+            taus.append(tau)
+            states.append(st)
+        # sum |tau * qd| over substeps and joints with C-level iterators: this is the cheapest
+        # exact form (an order of magnitude cheaper than numpy on 25 x 12 Python floats)
+        power = sum(map(abs, map(mul, chain.from_iterable(taus), map(_vel, chain(*states)))))
+        return float(power) * self._dt
+
+    def _read_state(self) -> None:
+        """Read the simulator once (batched calls) and cache what obs, rewards and features use."""
+        cid, robot = self._cid, self._robot
+        st = pb.getJointStates(robot, self._joint_ids, physicsClientId=cid)
+        self._q = np.fromiter(map(_pos, st), np.float64, 12)
+        self._qd = np.fromiter(map(_vel, st), np.float64, 12)
+        pos, orn = pb.getBasePositionAndOrientation(robot, physicsClientId=cid)
+        lin, ang = pb.getBaseVelocity(robot, physicsClientId=cid)
+        self._pos, self._orn = pos, orn
+        self._rot = np.asarray(pb.getMatrixFromQuaternion(orn)).reshape(3, 3)
+        self._lin_world = np.asarray(lin)
+        self._ang_world = np.asarray(ang)
+        contacts = np.zeros(4, dtype=np.float32)
+        slot = self._foot_slot
+        for cp in pb.getContactPoints(robot, self._plane, physicsClientId=cid):
+            k = slot.get(cp[3])
+            if k is not None:
+                contacts[k] = 1.0
+        self._contacts = contacts
+
+    def _obs(self) -> np.ndarray:
+        rot = self._rot
+        obs = np.empty(OBS_DIM, dtype=np.float32)
+        obs[0:12] = self._q
+        obs[12:24] = self._qd
+        obs[24:27] = -rot[2]  # R^T (0, 0, -1): minus the third row of the body-to-world matrix
+        obs[27:30] = self._ang_world @ rot
+        obs[30:33] = self._lin_world @ rot
+        obs[33] = self._pos[2]
+        obs[34:46] = self._prev_action
+        return obs
+
+    def _map_action(self, a: np.ndarray) -> np.ndarray:
+        """Joint targets (12,) in rad for a clipped action a (12,)."""
+        if self.config.action_mapping == "linear":
+            return self._low + 0.5 * (a + 1.0) * (self._high - self._low)
+        return self._stand + a * np.where(a >= 0.0, self._span_up, self._span_down)
+
+    def _filter(self, x: np.ndarray) -> np.ndarray:
+        b, a = self._filter_b, self._filter_a
+        if b is None or a is None:
+            return x
+        (x1, x2), (y1, y2) = self._fx, self._fy
+        y = b[0] * x + b[1] * x1 + b[2] * x2 - a[1] * y1 - a[2] * y2
+        self._fx = [x, x1]
+        self._fy = [y, y1]
+        return y
+
+    def _place_standing(self, x: float, y: float, yaw: float) -> None:
+        """Put the robot upright at standing height with standing joints (frozen joints keep
+        their frozen angle) and zero velocity at (x, y) facing ``yaw``."""
+        cid, robot = self._cid, self._robot
+        quat = pb.getQuaternionFromEuler([0.0, 0.0, yaw])
+        pb.resetBasePositionAndOrientation(
+            robot, [x, y, self._stand_height], quat, physicsClientId=cid
+        )
+        pb.resetBaseVelocity(robot, [0.0, 0.0, 0.0], [0.0, 0.0, 0.0], physicsClientId=cid)
+        for i, j in enumerate(self._joint_ids):
+            q = self._frozen.get(i, float(self._stand[i]))
+            pb.resetJointState(robot, j, q, 0.0, physicsClientId=cid)
+        self._reset_filter()
+
+    # ------------------------------------------------------------------ gymnasium API
+
+    def reset(
+        self, *, seed: int | None = None, options: dict[str, Any] | None = None
+    ) -> tuple[np.ndarray, dict[str, Any]]:
+        """Return the current observation; the simulation is never reset (``ursa.envs.base``)."""
+        self._reset_calls += 1
+        info = {"reset_calls": self._reset_calls - 1, "step": self._steps, "rescues": self._rescues}
+        return self._obs(), info
+
+    def step(self, action: np.ndarray) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
+        c = self.config
+        a = np.minimum(np.maximum(np.asarray(action, dtype=np.float64).reshape(ACT_DIM), -1.0), 1.0)
+        targets = self._filter(self._map_action(a))
+        r_work = self._simulate(targets)
+        self._read_state()
+        self._steps += 1
+
+        r_upr = tasks.upright_reward(float(self._rot[2, 2]))
+        v_fwd, v_lat, yaw_rate = tasks.heading_velocity(self._rot, self._lin_world, self._ang_world)
+        terms: dict[str, float] = {"upr": r_upr}
+        if c.task == "forward":
+            terms["velx"], terms["vely"], terms["yaw"] = tasks.velocity_terms(
+                v_fwd, v_lat, yaw_rate, c.target_speed, c.yaw_rate_scale
+            )
+        else:
+            dev = tasks.posture_deviation(self._q, self._stand, self._low, self._high)
+            terms["hip"], terms["upper"], terms["lower"] = tasks.posture_terms(r_upr, dev)
+        terms["speed"] = tasks.speed_penalty(self._qd)
+        terms["work"] = r_work
+        terms["smooth"] = tasks.smooth_penalty(a, self._prev_action)
+        if c.task == "forward":
+            reward, cost, safe = tasks.forward_reward(terms)
+        else:
+            reward, cost, safe = tasks.posture_reward(terms)
+        self._prev_action = a
+
+        vae_input = np.empty(13, dtype=np.float32)
+        vae_input[:12] = self._q
+        vae_input[12] = self._pos[2]
+        features = {
+            "vae_input": vae_input,
+            "velocity": np.array([v_fwd, yaw_rate], dtype=np.float32),
+            "contacts": self._contacts,
+        }
+
+        bad = (not safe) if c.rescue_on == "unsafe" else r_upr <= tasks.GATE
+        self._unsafe_run = self._unsafe_run + 1 if bad else 0
+        rescued = False
+        if c.rescue and self._unsafe_run >= c.rescue_after:
+            self._rescue()
+            rescued = True
+
+        info: dict[str, Any] = {
+            "reward_terms": terms,
+            "cost": cost,
+            "safe": safe,
+            "features": features,
+            "rescues": self._rescues,
+            "rescued": rescued,
+            "step": self._steps,
+            # for live views (after a rescue: the righted pose)
+            "joint_angles": self._q,
+            "base_position": np.asarray(self._pos),
+            "base_orientation": np.asarray(self._orn),
+        }
+        return self._obs(), reward, False, False, info
+
+    def close(self) -> None:
+        if not self._closed:
+            self._closed = True
+            pb.disconnect(physicsClientId=self._cid)
+
+    def __del__(self) -> None:
+        try:
+            self.close()
+        except Exception:
+            pass  # interpreter shutdown: pybullet may already be gone
+
+    # ------------------------------------------------------------------ rescue, damage, probes
+
+    def _rescue(self) -> None:
+        """Right the robot in place: keep x, y and heading, stand it up, zero its velocity."""
+        yaw = math.atan2(float(self._rot[1, 0]), float(self._rot[0, 0]))
+        self._place_standing(float(self._pos[0]), float(self._pos[1]), yaw)
+        self._rescues += 1
+        self._unsafe_run = 0
+        self._read_state()
+
+    def freeze_joint(self, index: int, angle: float | None = None) -> None:
+        """Freeze joint ``index`` (into ``JOINT_NAMES``) at ``angle`` (default: its current angle).
+
+        The joint is held by a stiff PyBullet position motor (solved implicitly by the
+        constraint solver, so it is stable and costs nothing per substep) and ignores actions.
+        """
+        if not 0 <= index < 12:
+            raise ValueError("joint index must be in 0..11")
+        jid = self._joint_ids[index]
+        if angle is None:
+            angle = pb.getJointState(self._robot, jid, physicsClientId=self._cid)[0]
+        self._frozen[index] = float(angle)
+        pb.setJointMotorControl2(
+            self._robot,
+            jid,
+            pb.POSITION_CONTROL,
+            targetPosition=float(angle),
+            targetVelocity=0.0,
+            positionGain=1.0,
+            velocityGain=1.0,
+            force=_FREEZE_FORCE,
+            physicsClientId=self._cid,
+        )
+        self._refresh_active()
+
+    def unfreeze_joint(self, index: int) -> None:
+        """Repair joint ``index``: it follows the PD controller again."""
+        if self._frozen.pop(index, None) is None:
+            return
+        pb.setJointMotorControl2(
+            self._robot,
+            self._joint_ids[index],
+            pb.VELOCITY_CONTROL,
+            force=0.0,
+            physicsClientId=self._cid,
+        )
+        self._refresh_active()
+
+    @property
+    def frozen_joints(self) -> dict[int, float]:
+        """Frozen joint index -> the angle it is held at."""
+        return dict(self._frozen)
+
+    @property
+    def rescues(self) -> int:
+        return self._rescues
+
+    @property
+    def steps(self) -> int:
+        return self._steps
+
+    @property
+    def standing_height(self) -> float:
+        """Base height (m) at which the robot is placed standing (construction, rescue)."""
+        return self._stand_height
+
+    @property
+    def client_id(self) -> int:
+        """The PyBullet client id of this env's simulation."""
+        return self._cid
+
+    @property
+    def robot_id(self) -> int:
+        return self._robot
+
+    def base_pose(self) -> tuple[np.ndarray, np.ndarray]:
+        """World base position (3,) and orientation quaternion (x, y, z, w) (4,) after the
+        last step, e.g. for visualisation."""
+        return np.asarray(self._pos), np.asarray(self._orn)
+
+    def joint_angles(self) -> np.ndarray:
+        """The 12 joint angles (rad) after the last step."""
+        return self._q.copy()
+
+    def place(
+        self,
+        position: tuple[float, float, float] | None = None,
+        orientation: tuple[float, float, float, float] | None = None,
+        linear_velocity: tuple[float, float, float] | None = None,
+        angular_velocity: tuple[float, float, float] | None = None,
+        joint_angles: np.ndarray | None = None,
+    ) -> np.ndarray:
+        """Move the robot (tests, evaluations, demos); what is None is kept. Returns the obs.
+
+        This is not a reset: counters, the previous action and damage are untouched.
+        """
+        cid, robot = self._cid, self._robot
+        if position is not None or orientation is not None:
+            pb.resetBasePositionAndOrientation(
+                robot,
+                list(position) if position is not None else list(self._pos),
+                list(orientation) if orientation is not None else list(self._orn),
+                physicsClientId=cid,
+            )
+        if linear_velocity is not None or angular_velocity is not None:
+            lin = list(linear_velocity) if linear_velocity is not None else self._lin_world
+            ang = list(angular_velocity) if angular_velocity is not None else self._ang_world
+            pb.resetBaseVelocity(robot, list(lin), list(ang), physicsClientId=cid)
+        if joint_angles is not None:
+            for i, (j, q) in enumerate(zip(self._joint_ids, joint_angles, strict=True)):
+                if i not in self._frozen:
+                    pb.resetJointState(robot, j, float(q), 0.0, physicsClientId=cid)
+        self._read_state()
+        return self._obs()

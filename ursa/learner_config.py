@@ -1,0 +1,216 @@
+"""Configuration of the URSA learner (world model, critics, multipliers, actor, VAE).
+
+One frozen dataclass; the presets ``tiny`` (tests), ``small`` (a CPU) and ``paper`` (the paper's
+and QDAC-MB's sizes) change sizes only, never code paths. Algorithm constants (γ, λ, KL scales,
+free nats, slow-critic rate, return normalisation) are the same in every preset; a test or an
+experiment that needs another value replaces the field explicitly (``dataclasses.replace``) and
+says why. See docs/learner.md for the reasons behind each default.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+from typing import Literal
+
+Mode = Literal["ursa", "ursa-supervised", "daydreamer"]
+LearnerPresetName = Literal["tiny", "small", "paper"]
+
+
+@dataclass(frozen=True)
+class LearnerConfig:
+    """Everything the learner needs; sizes come from a preset."""
+
+    mode: Mode = "ursa"
+    """``ursa``: φ is a VAE encoder trained on the repertoire's inputs; ``ursa-supervised``: φ is
+    a provided feature (the replay's ``features`` field); ``daydreamer``: reward only (no skills,
+    no successor features, no multipliers, no safety critic)."""
+    device: str = "cpu"
+    """Torch device of the learner (``cpu``, ``cuda``, ``cuda:1``...)."""
+    seed: int = 0
+    """Seed of the learner's torch and numpy generators (and of the initial weights)."""
+
+    # --- world model sizes ---------------------------------------------------------------------
+    deter: int = 256
+    """Size of the RSSM's deterministic (GRU) state h."""
+    hidden: int = 256
+    """Width of the RSSM's internal layers (input, prior and posterior MLPs)."""
+    stoch: int = 16
+    """Number of categorical latent variables of the RSSM."""
+    classes: int = 16
+    """Classes per categorical latent variable."""
+    units: int = 256
+    """Width of every MLP (encoder, decoder, heads, actor, critics)."""
+    layers: int = 2
+    """Hidden layers of every MLP."""
+    bins: int = 255
+    """Two-hot bins of the reward, cost, value and cost-critic heads (symexp-spaced)."""
+    unimix: float = 0.01
+    """Uniform mixture of the latent categoricals (and of their KL)."""
+
+    # --- world-model loss ----------------------------------------------------------------------
+    kl_dyn: float = 0.5
+    """Scale of the dynamics loss KL(sg(post) ‖ prior) (QDAC-MB's value; DreamerV3 uses 1.0)."""
+    kl_rep: float = 0.1
+    """Scale of the representation loss KL(post ‖ sg(prior))."""
+    free_nats: float = 1.0
+    """Each KL term is clipped below at this value (per time step), so it has no gradient there."""
+
+    # --- batches -------------------------------------------------------------------------------
+    batch_size: int = 16
+    """B: replayed sequences per update."""
+    seq_len: int = 64
+    """T: steps per replayed sequence."""
+    imag_horizon: int = 15
+    """H: imagined steps from every start state."""
+    imag_starts: int = 0
+    """Start states of the imagination per update, drawn without replacement from the B·T
+    posterior states; 0 uses all of them (DreamerV3)."""
+    train_ratio: float = 32.0
+    """Replayed steps per collected env step (B·T per update); drives the serial loop and the
+    learner service."""
+
+    # --- returns and critics -------------------------------------------------------------------
+    discount: float = 0.995
+    """γ of V, ψ and C (paper §5.1)."""
+    cost_discount: float = 0.0
+    """γ of the cost critic C; 0 means ``discount``. See docs/learner.md (point-env tests)."""
+    return_lambda: float = 0.95
+    """λ of the TD(λ) returns."""
+    slow_critic_fraction: float = 0.02
+    """EMA rate of the slow (target) critics, updated after every critic step."""
+    retnorm_rate: float = 0.01
+    """EMA rate of the 5th/95th return percentiles (DreamerV3 return normalisation)."""
+    retnorm_limit: float = 1.0
+    """Returns are divided by max(limit, P95 − P5)."""
+
+    # --- actor ---------------------------------------------------------------------------------
+    actor_entropy: float = 3e-4
+    """Entropy bonus of the actor (on the normalised objective)."""
+    actor_min_std: float = 0.1
+    """Smallest std of the actor's pre-tanh Gaussian."""
+    actor_max_std: float = 1.0
+    """Largest std of the actor's pre-tanh Gaussian."""
+
+    # --- Lagrange multipliers ------------------------------------------------------------------
+    lagrange_units: int = 64
+    """Width of the single hidden layer of λ1(s, z) and λ2(s, z)."""
+
+    # --- optimisers ----------------------------------------------------------------------------
+    model_lr: float = 1e-4
+    """Adam learning rate of the world model."""
+    model_eps: float = 1e-8
+    """Adam epsilon of the world model."""
+    model_clip: float = 1000.0
+    """Global gradient-norm clip of the world model."""
+    actor_lr: float = 3e-5
+    """Adam learning rate of the actor."""
+    critic_lr: float = 3e-5
+    """Adam learning rate of V, ψ and C."""
+    lagrange_lr: float = 3e-5
+    """Adam learning rate of λ1 and λ2."""
+    ac_eps: float = 1e-5
+    """Adam epsilon of actor, critics and multipliers."""
+    ac_clip: float = 100.0
+    """Global gradient-norm clip of actor, critics and multipliers (each separately)."""
+
+    # --- VAE (mode ``ursa``) -------------------------------------------------------------------
+    skill_dim: int = 3
+    """D: latent size of the VAE, i.e. the skill dimension in ``ursa`` mode."""
+    vae_units: int = 128
+    """Width of the VAE's MLPs."""
+    vae_layers: int = 2
+    """Hidden layers of the VAE's encoder and decoder."""
+    vae_lr: float = 3e-4
+    """Adam learning rate of the VAE."""
+    vae_beta: float = 1.0
+    """Weight of the KL term of the ELBO."""
+    vae_batch: int = 256
+    """Repertoire inputs per VAE step."""
+    vae_publish_every: int = 500
+    """Updates between two published encoder versions (the repertoire re-encodes on each)."""
+
+    def __post_init__(self) -> None:
+        if self.mode not in ("ursa", "ursa-supervised", "daydreamer"):
+            raise ValueError(f"unknown mode {self.mode!r}")
+        if min(self.deter, self.hidden, self.stoch, self.classes, self.units, self.layers) < 1:
+            raise ValueError("network sizes must be positive")
+        if self.bins < 2 or self.batch_size < 1 or self.seq_len < 1 or self.imag_horizon < 1:
+            raise ValueError("bins ≥ 2 and batch_size, seq_len, imag_horizon ≥ 1 are required")
+        if not 0.0 < self.discount < 1.0 or not 0.0 <= self.cost_discount < 1.0:
+            raise ValueError("discounts must lie in (0, 1)")
+
+    @property
+    def gamma_cost(self) -> float:
+        """γ of the cost critic (``cost_discount`` or ``discount``)."""
+        return self.cost_discount or self.discount
+
+    @property
+    def uses_skills(self) -> bool:
+        """Whether the policy is skill-conditioned (every mode but ``daydreamer``)."""
+        return self.mode != "daydreamer"
+
+    @classmethod
+    def tiny(cls, **overrides: object) -> LearnerConfig:
+        """Sizes for the tests on the point env (a few minutes of CPU)."""
+        base = cls(
+            deter=64,
+            hidden=64,
+            stoch=8,
+            classes=8,
+            units=64,
+            layers=2,
+            bins=63,
+            batch_size=16,
+            seq_len=32,
+            imag_starts=256,
+            lagrange_units=32,
+            vae_units=32,
+            vae_batch=128,
+        )
+        return dataclasses.replace(base, **overrides)  # type: ignore[arg-type]
+
+    @classmethod
+    def small(cls, **overrides: object) -> LearnerConfig:
+        """Sizes for one CPU (the DayDreamer-like A1 setting, scaled down)."""
+        base = cls(
+            deter=256,
+            hidden=256,
+            stoch=16,
+            classes=16,
+            units=256,
+            layers=2,
+            bins=255,
+            batch_size=16,
+            seq_len=32,
+            imag_starts=0,
+            lagrange_units=64,
+        )
+        return dataclasses.replace(base, **overrides)  # type: ignore[arg-type]
+
+    @classmethod
+    def paper(cls, **overrides: object) -> LearnerConfig:
+        """QDAC-MB's sizes (RSSM 512, stoch 32×32, MLPs 2×512, batch 16×64, 255 bins)."""
+        base = cls(
+            deter=512,
+            hidden=512,
+            stoch=32,
+            classes=32,
+            units=512,
+            layers=2,
+            bins=255,
+            batch_size=16,
+            seq_len=64,
+            imag_starts=0,
+            lagrange_units=64,
+            vae_units=256,
+        )
+        return dataclasses.replace(base, **overrides)  # type: ignore[arg-type]
+
+
+def learner_preset(name: LearnerPresetName, **overrides: object) -> LearnerConfig:
+    """The learner config of a preset, with optional field overrides."""
+    factory = {"tiny": LearnerConfig.tiny, "small": LearnerConfig.small, "paper": LearnerConfig.paper}
+    if name not in factory:
+        raise ValueError(f"unknown preset {name!r}")
+    return factory[name](**overrides)
