@@ -47,6 +47,9 @@ class CollectorArgs:
     """Unique id of this collector (env URSA_COLLECTOR_ID, default: host name)."""
     seed: int = int(os.environ.get("URSA_SEED", "0"))
     """Seed of the environment and of the exploration noise."""
+    backlog_chunks: int = 4000
+    """Chunks (and feature batches) kept while nobody subscribes (learner or router down); sent
+    in order once a subscriber matches again. The oldest are dropped beyond this."""
     max_steps: int = 0
     """Stop after this many control steps (0: run until stopped)."""
     realtime_factor: float = 0.0
@@ -78,6 +81,9 @@ class Collector:
 
         self.pub_chunks = publisher(self.rt.session, t.transitions(self.cid), reliable=True)
         self.pub_features = publisher(self.rt.session, t.features(self.cid), reliable=True)
+        self.backlog = {"chunks": deque[bytes](maxlen=args.backlog_chunks),
+                        "features": deque[bytes](maxlen=args.backlog_chunks)}
+        self.backlog_dropped = 0
         self._weights_lock = threading.Lock()
         self._pending_weights: pb.PolicyWeights | None = None
         self.sub_weights = self.rt.session.declare_subscriber(
@@ -225,14 +231,26 @@ class Collector:
             task=self.task, damage=self.damage,
             **{k: codec.to_array(v) for k, v in arr.items()},
         )
-        self.pub_chunks.put(codec.encode(msg))
+        self._send("chunks", self.pub_chunks, codec.encode(msg))
         self.seq += 1
         safe_feats = arr["features"][arr["safe"]]
         if len(safe_feats):
             fm = pb.SafeFeatures(header=self.rt.header(), collector_id=self.cid, seq=self.feat_seq,
                                  features=codec.to_array(safe_feats))
-            self.pub_features.put(codec.encode(fm))
+            self._send("features", self.pub_features, codec.encode(fm))
             self.feat_seq += 1
+
+    def _send(self, stream: str, pub: Any, payload: bytes) -> None:
+        """Put now if a subscriber matches, else keep it (bounded) until one does."""
+        q = self.backlog[stream]
+        if not pub.matching_status.matching:
+            if len(q) == q.maxlen:
+                self.backlog_dropped += 1
+            q.append(payload)
+            return
+        while q:
+            pub.put(q.popleft())
+        pub.put(payload)
 
     def _publish_stats(self, sps: float) -> None:
         n = max(len(self.unsafe_window), 1)
@@ -251,6 +269,8 @@ class Collector:
                 "rescues": self.rescues,
                 "policy_version": self.policy_version,
                 "incarnation": self.incarnation,
+                "backlog_chunks": len(self.backlog["chunks"]),
+                "backlog_dropped": self.backlog_dropped,
             },
             labels={"env": self.cfg.env, "task": self.task, "damage": self.damage or "none",
                     "skill_source": self.skill_source},
