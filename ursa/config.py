@@ -13,6 +13,7 @@ from typing import Literal
 from ursa.envs.a1 import A1Config
 from ursa.envs.base import ResetFreeEnv
 from ursa.envs.point import PointConfig
+from ursa.learner_config import LearnerConfig, learner_preset
 from ursa.repertoire import RepertoireConfig
 
 PresetName = Literal["tiny", "small", "paper"]
@@ -58,6 +59,8 @@ class Config:
     """The point environment."""
     collector: CollectorConfig = field(default_factory=CollectorConfig)
     repertoire: RepertoireConfig = field(default_factory=RepertoireConfig)
+    learner: LearnerConfig = field(default_factory=LearnerConfig.small)
+    """World model, critics, multipliers, actor and VAE (``mode`` picks URSA or a baseline)."""
 
     @property
     def learned_feature(self) -> bool:
@@ -88,7 +91,11 @@ def with_feature(cfg: Config, feature: str) -> Config:
         if feature not in dims:
             raise ValueError(f"env {cfg.env!r} provides {sorted(dims)}, not {feature!r}")
         rep = dataclasses.replace(cfg.repertoire, dim=dims[feature], input_dim=None)
-    return dataclasses.replace(cfg, feature=feature, repertoire=rep)
+    mode = cfg.learner.mode
+    if mode != "daydreamer":
+        mode = "ursa" if feature == "vae" else "ursa-supervised"
+    learner = dataclasses.replace(cfg.learner, mode=mode, skill_dim=rep.dim)
+    return dataclasses.replace(cfg, feature=feature, repertoire=rep, learner=learner)
 
 
 def preset(name: PresetName, env: EnvName | None = None, feature: str | None = None) -> Config:
@@ -101,6 +108,7 @@ def preset(name: PresetName, env: EnvName | None = None, feature: str | None = N
         collector=CollectorConfig(skill_period=_SKILL_PERIOD[name],
                                   chunk_len=25 if name == "tiny" else 50),
         repertoire=RepertoireConfig(size=_REPERTOIRE_SIZE[name]),
+        learner=learner_preset(name),
     )
     return with_feature(cfg, feature or ("vae" if env_name == "a1" else "position"))
 

@@ -20,13 +20,15 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
+import torch
 
 from proto import codec
 from proto import ursa_pb2 as pb
 from services.common.bus import publisher, query_one, safe_handler
-from services.common.config import BusConfig, RunConfig, save_resolved
+from services.common.config import BusConfig, RunConfig, config_hash, save_resolved
 from services.common.runtime import ServiceRuntime
 from ursa.config import Config, build_env
+from ursa.policy import Policy
 
 
 def default_collector_id() -> str:
@@ -78,6 +80,12 @@ class Collector:
         self.task = self.cfg.a1.task if self.cfg.env == "a1" else "point"
         self.damage = (self.cfg.a1.damage or "") if self.cfg.env == "a1" else ""
         self.rng = np.random.default_rng(args.seed + 7919 * self.incarnation)
+        torch.set_num_threads(1)
+        self.policy = Policy(self.cfg.learner, self.env.obs_dim, self.env.act_dim, self.skill_dim,
+                             feat_in_dim=int(self.env.feature_dims[self.feature_key]),
+                             seed=args.seed)
+        self.carry = self.policy.initial_carry()
+        self.config_hash = config_hash(self.cfg.learner)
 
         self.pub_chunks = publisher(self.rt.session, t.transitions(self.cid), reliable=True)
         self.pub_features = publisher(self.rt.session, t.features(self.cid), reliable=True)
@@ -128,6 +136,17 @@ class Collector:
             msg, self._pending_weights = self._pending_weights, None
         if msg is None or msg.version <= self.policy_version:
             return
+        if msg.config_hash != self.config_hash:
+            self.rt.drops.add("config_mismatch")
+            self.log.warning("refused weights %d: learner config %s, mine %s", msg.version,
+                             msg.config_hash, self.config_hash)
+            return
+        try:
+            self.policy.load_weights_bytes(msg.safetensors, version=int(msg.version))
+        except Exception as e:  # wrong shapes or corrupt bytes: keep the current policy
+            self.rt.drops.add("bad_weights")
+            self.log.warning("refused weights %d: %s", msg.version, e)
+            return
         self.policy_version = int(msg.version)
         self.log.info("policy weights version %d", self.policy_version)
 
@@ -151,8 +170,14 @@ class Collector:
         self.skill_source = "kde"
 
     # ---- acting --------------------------------------------------------------------------
-    def act(self, obs: np.ndarray) -> np.ndarray:
-        return self.rng.uniform(-1.0, 1.0, size=self.env.act_dim).astype(np.float32)
+    def act(self, obs: np.ndarray, explore: bool = True) -> np.ndarray:
+        """The policy's action for ``obs`` and the current skill; uniformly random actions
+        until the first trained weights arrive (DayDreamer's prefill)."""
+        if self.policy_version <= 0:
+            return self.rng.uniform(-1.0, 1.0, size=self.env.act_dim).astype(np.float32)
+        action, self.carry = self.policy.act(self.carry, obs, self.skill, explore=explore,
+                                             rng=self.rng)
+        return action.astype(np.float32)
 
     def run(self) -> None:
         cfg = self.cfg.collector
@@ -181,7 +206,9 @@ class Collector:
             safe = bool(info["safe"])
             if not buf["obs"]:
                 chunk_first_step = self.step_count
-            buf["obs"].append(obs)
+            # records follow the world model's convention: the observation after the step with
+            # the action that produced it, its reward, cost and safety
+            buf["obs"].append(next_obs)
             buf["action"].append(action)
             buf["reward"].append(reward)
             buf["cost"].append(info["cost"])

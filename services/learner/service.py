@@ -1,25 +1,44 @@
-"""Learner: ingests every collector's chunks into the replay (MCAP on disk) and trains.
+"""Learner: ingests every collector's chunks into the replay (MCAP on disk) and trains the world
+model, critics, multipliers, actor (and VAE) continuously (paper Algorithm 2).
 
 Subscribes:  ursa/{run}/collector/transitions/* (TransitionChunk, BLOCK)
-Publishes:   ursa/{run}/learner/stats (Stats)
+             ursa/{run}/repertoire/snapshot (RepertoireSnapshot; also queried at start)
+Queryables:  ursa/{run}/learner/weights (-> PolicyWeights, the latest)
+             ursa/{run}/learner/encoder (-> EncoderWeights, the latest; learned phi only)
+Publishes:   ursa/{run}/learner/weights (PolicyWeights, every few seconds)
+             ursa/{run}/learner/encoder (EncoderWeights, on each new version)
+             ursa/{run}/learner/stats (Stats: losses, λ1/λ2, replay, ratio, policy lag)
 Liveliness:  ursa/{run}/alive/learner/{id}
+Files:       <run>/replay/segment-*.mcap, <run>/checkpoints/learner.pt + learner_state.json
 """
 
 from __future__ import annotations
 
+import json
 import os
 import queue
+import threading
 import time
+from collections import deque
 from dataclasses import dataclass, field
+
+import numpy as np
+import torch
+import zenoh
+from safetensors.torch import save as st_save
 
 from proto import codec
 from proto import ursa_pb2 as pb
-from services.common.bus import safe_handler
-from services.common.config import BusConfig, RunConfig, save_resolved
+from services.common.bus import publisher, query_one, safe_handler
+from services.common.config import BusConfig, RunConfig, config_hash, save_resolved
 from services.common.runtime import ServiceRuntime
 from services.learner.ingest import IngestLedger
 from services.learner.replay_store import ReplayWriter, read_all
-from ursa.config import Config
+from ursa.config import Config, build_env
+from ursa.learner import Learner, SkillSnapshot
+from ursa.replay import Replay
+
+CHUNK_FIELDS = ("obs", "action", "reward", "cost", "safe", "features", "skill")
 
 
 @dataclass(frozen=True)
@@ -35,6 +54,18 @@ class LearnerArgs:
     """How often metrics are published."""
     segment_chunks: int = 2000
     """Chunks per MCAP replay segment before rotating to a new file."""
+    replay_capacity: int = 2_000_000
+    """Transitions the in-memory replay keeps (the MCAP segments keep everything)."""
+    min_replay: int = 2000
+    """Transitions in the replay before the first update (DayDreamer's train_fill)."""
+    publish_every_s: float = 5.0
+    """Seconds between two policy-weight publications."""
+    checkpoint_every_s: float = 120.0
+    """Seconds between two checkpoints (one is also written on SIGTERM)."""
+    torch_threads: int = int(os.environ.get("URSA_TORCH_THREADS", "1"))
+    """Intra-op threads of torch on the CPU (env URSA_TORCH_THREADS)."""
+    max_updates: int = 0
+    """Stop training after this many updates (0: never); ingestion goes on."""
 
 
 class LearnerService:
@@ -42,83 +73,272 @@ class LearnerService:
 
     def __init__(self, args: LearnerArgs) -> None:
         self.args = args
+        self.cfg = args.core
+        torch.set_num_threads(max(1, args.torch_threads))
         self.rt = ServiceRuntime("learner", args.learner_id, args.bus, args.run)
         self.log = self.rt.log
         save_resolved(args, args.run, "learner")
-        self.ledger = IngestLedger()
-        self.replay_dir = args.run.dir / "replay"
-        self.restored_chunks = self._restore()
-        self.writer = ReplayWriter(self.replay_dir, args.segment_chunks)
-        self.inbox: queue.Queue[pb.TransitionChunk] = queue.Queue()
-        self.sub = self.rt.session.declare_subscriber(
-            self.rt.topics.transitions(),
-            safe_handler(pb.TransitionChunk, self._on_chunk, self.rt.drops, args.run.run_id),
-        )
+        self.config_hash = config_hash(self.cfg.learner)
 
-    def _restore(self) -> int:
+        env = build_env(self.cfg, seed=0)
+        obs_dim, act_dim = env.obs_dim, env.act_dim
+        feat_in = int(env.feature_dims[self.cfg.feature_input_key])
+        env.close()
+        self.learner = Learner(self.cfg.learner, obs_dim, act_dim, feat_in, self.cfg.skill_dim)
+        self.replay = Replay(args.replay_capacity)
+        self.ledger = IngestLedger()
+        self.rng = np.random.default_rng(self.cfg.learner.seed + 1)
+        self.ckpt_dir = args.run.dir / "checkpoints"
+        self.state_path = self.ckpt_dir / "learner_state.json"
+        self.samples = 0
+        """Transitions sampled for training so far (for the replay ratio)."""
+        self.weights_version = 0
+        self.metrics: dict[str, float] = {}
+        self.lags: deque[int] = deque(maxlen=200)
+        self.update_times: deque[float] = deque(maxlen=100)
+
+        self.replay_dir = args.run.dir / "replay"
+        self._restore()
+        self.writer = ReplayWriter(self.replay_dir, args.segment_chunks)
+
+        self.inbox: queue.Queue[pb.TransitionChunk] = queue.Queue()
+        self._snap_lock = threading.Lock()
+        self._snapshot: pb.RepertoireSnapshot | None = None
+        self._weights_bytes: bytes | None = None
+        self._encoder_bytes: bytes | None = None
+        t = self.rt.topics
+        self.pub_weights = publisher(self.rt.session, t.weights, reliable=False)
+        self.pub_encoder = publisher(self.rt.session, t.encoder, reliable=True)
+        self.subs = [
+            self.rt.session.declare_subscriber(
+                t.transitions(),
+                safe_handler(pb.TransitionChunk, self._on_chunk, self.rt.drops, args.run.run_id)),
+            self.rt.session.declare_subscriber(
+                t.snapshot,
+                safe_handler(pb.RepertoireSnapshot, self._on_snapshot, self.rt.drops,
+                             args.run.run_id)),
+        ]
+        self.queryables = [self.rt.session.declare_queryable(t.weights, self._on_weights_query)]
+        if self.learned:
+            self.queryables.append(
+                self.rt.session.declare_queryable(t.encoder, self._on_encoder_query))
+
+    @property
+    def learned(self) -> bool:
+        return self.cfg.learner.mode == "ursa"
+
+    # ---- persistence -----------------------------------------------------------------------
+    def _restore(self) -> None:
+        ckpt = self.ckpt_dir / "learner.pt"
+        if ckpt.exists():
+            self.learner.load_checkpoint(ckpt)
+            state = json.loads(self.state_path.read_text()) if self.state_path.exists() else {}
+            self.samples = int(state.get("samples", 0))
+            self.weights_version = int(state.get("weights_version", self.learner.updates))
+            self.log.info("resumed from checkpoint at %d updates", self.learner.updates)
         n = 0
         for chunk in read_all(self.replay_dir):
             self._admit(chunk, write=False)
             n += 1
         if n:
-            self.log.info("restored %d chunks (%d steps) from %s", n, self.ledger.total_steps,
+            self.log.info("restored %d chunks (%d transitions) from %s", n, len(self.replay),
                           self.replay_dir)
-        return n
 
+    def checkpoint(self) -> None:
+        self.ckpt_dir.mkdir(parents=True, exist_ok=True)
+        self.learner.save_checkpoint(self.ckpt_dir / "learner.pt")
+        state = {"samples": self.samples, "weights_version": self.weights_version,
+                 "updates": self.learner.updates, "stamp": time.time()}
+        tmp = self.state_path.with_suffix(".tmp")
+        tmp.write_text(json.dumps(state))
+        os.replace(tmp, self.state_path)
+
+    # ---- bus callbacks ---------------------------------------------------------------------
     def _on_chunk(self, msg: pb.TransitionChunk, key: str) -> None:
-        # validate in the callback thread so a bad array is counted as a drop there
         obs = codec.from_array(msg.obs)
         if obs.ndim != 2 or obs.shape[0] == 0:
             raise codec.BadMessage(f"chunk obs of shape {obs.shape}")
-        for name in ("action", "reward", "cost", "safe", "features", "skill"):
+        for name in CHUNK_FIELDS[1:]:
             a = codec.from_array(getattr(msg, name))
             if a.shape[:1] != obs.shape[:1]:
                 raise codec.BadMessage(f"chunk {name} has {a.shape[:1]} rows, obs {obs.shape[0]}")
         self.inbox.put(msg)
 
-    def _admit(self, chunk: pb.TransitionChunk, write: bool = True) -> bool:
-        n = int(chunk.obs.shape[0])
-        ok, _starts = self.ledger.admit(chunk.collector_id, int(chunk.incarnation), int(chunk.seq),
-                                        int(chunk.first_step), n, int(chunk.policy_version))
-        if ok and write:
-            self.writer.write(chunk)
-        return ok
+    def _on_snapshot(self, msg: pb.RepertoireSnapshot, key: str) -> None:
+        with self._snap_lock:
+            self._snapshot = msg
 
-    def run(self) -> None:
-        period = 1.0 / self.args.stats_hz
-        last = 0.0
-        while not self.rt.stop.is_set():
-            try:
-                chunk = self.inbox.get(timeout=0.05)
-                self._admit(chunk)
-                while True:
-                    self._admit(self.inbox.get_nowait())
-            except queue.Empty:
-                pass
-            now = time.monotonic()
-            if now - last >= period:
-                self.publish_stats()
-                last = now
+    def _on_weights_query(self, query: zenoh.Query) -> None:
+        if self._weights_bytes is not None:
+            query.reply(self.rt.topics.weights, self._weights_bytes)
+
+    def _on_encoder_query(self, query: zenoh.Query) -> None:
+        if self._encoder_bytes is not None:
+            query.reply(self.rt.topics.encoder, self._encoder_bytes)
+
+    # ---- ingestion -------------------------------------------------------------------------
+    def _admit(self, chunk: pb.TransitionChunk, write: bool = True) -> bool:
+        arrays = {name: codec.from_array(getattr(chunk, name)) for name in CHUNK_FIELDS}
+        n = int(arrays["obs"].shape[0])
+        ok, _ = self.ledger.admit(chunk.collector_id, int(chunk.incarnation), int(chunk.seq),
+                                  int(chunk.first_step), n, int(chunk.policy_version))
+        if not ok:
+            return False
+        try:
+            self.replay.add(chunk.collector_id, arrays, int(chunk.first_step))
+        except ValueError as e:  # another env's or config's data: refuse, never crash
+            self.rt.drops.add("incompatible")
+            self.log.warning("refused chunk from %s: %s", chunk.collector_id, e)
+            return False
+        if write:
+            self.writer.write(chunk)
+            self.lags.append(max(0, self.weights_version - int(chunk.policy_version)))
+        return True
+
+    def _drain(self, timeout: float) -> int:
+        n = 0
+        try:
+            chunk = self.inbox.get(timeout=timeout) if timeout > 0 else self.inbox.get_nowait()
+            self._admit(chunk)
+            n += 1
+            while True:
+                self._admit(self.inbox.get_nowait())
+                n += 1
+        except queue.Empty:
+            pass
+        return n
+
+    # ---- training --------------------------------------------------------------------------
+    def skill_snapshot(self) -> SkillSnapshot | None:
+        with self._snap_lock:
+            snap = self._snapshot
+        if snap is None:
+            return None
+        skills = codec.from_array(snap.skills)
+        if len(skills) < 2 or skills.shape[1] != self.cfg.skill_dim:
+            return None
+        if self.learned and snap.encoder_version != self.learner.vae_version:
+            # skills encoded with another encoder version live in another space: wait for the
+            # repertoire to re-encode (it receives every version we publish)
+            return None
+        inputs = codec.from_array(snap.inputs) if snap.HasField("inputs") else None
+        return SkillSnapshot(skills=np.asarray(skills, np.float64),
+                             cov=np.asarray(codec.from_array(snap.cov), np.float64),
+                             delta=float(snap.delta),
+                             inputs=None if inputs is None or inputs.size == 0
+                             else np.asarray(inputs, np.float64),
+                             version=int(snap.encoder_version))
+
+    def can_train(self) -> bool:
+        a, c = self.args, self.cfg.learner
+        if a.max_updates and self.learner.updates >= a.max_updates:
+            return False
+        if len(self.replay) < a.min_replay:
+            return False
+        inserted = self.ledger.total_steps
+        return self.samples + c.batch_size * c.seq_len <= c.train_ratio * inserted
+
+    def train_once(self) -> bool:
+        c = self.cfg.learner
+        snap = self.skill_snapshot() if c.uses_skills else None
+        if c.uses_skills and snap is None:
+            return False
+        t0 = time.perf_counter()
+        batch = self.replay.sample(c.batch_size, c.seq_len, self.rng)
+        before = self.learner.vae_version
+        metrics = self.learner.train_step(batch, snap)
+        self.samples += c.batch_size * c.seq_len
+        self.update_times.append(time.perf_counter() - t0)
+        self.metrics = metrics
+        if self.learned and self.learner.vae_version != before:
+            self.publish_encoder()
+        return True
+
+    # ---- publishing ------------------------------------------------------------------------
+    def publish_weights(self) -> None:
+        self.weights_version = self.learner.updates
+        msg = pb.PolicyWeights(header=self.rt.header(), version=self.weights_version,
+                               safetensors=self.learner.policy_weights_bytes(),
+                               config_hash=self.config_hash, updates=self.learner.updates)
+        self._weights_bytes = codec.encode(msg)
+        self.pub_weights.put(self._weights_bytes)
+
+    def encoder_bytes(self) -> bytes:
+        assert self.learner.vae_pub is not None
+        state = {k: v.detach().cpu().contiguous()
+                 for k, v in self.learner.vae_pub.state_dict().items()}
+        return st_save(state, metadata={"version": str(self.learner.vae_version)})
+
+    def publish_encoder(self) -> None:
+        msg = pb.EncoderWeights(header=self.rt.header(), version=self.learner.vae_version,
+                                safetensors=self.encoder_bytes(), config_hash=self.config_hash)
+        self._encoder_bytes = codec.encode(msg)
+        self.pub_encoder.put(self._encoder_bytes)
+        self.log.info("published encoder version %d", self.learner.vae_version)
 
     def publish_stats(self) -> None:
+        c = self.cfg.learner
+        inserted = max(self.ledger.total_steps, 1)
         scalars: dict[str, float] = {
-            "replay_steps": self.ledger.total_steps,
+            "replay_steps": len(self.replay),
+            "ingested_steps": self.ledger.total_steps,
             "collectors_seen": len(self.ledger.streams),
+            "updates": self.learner.updates,
+            "policy_version": self.weights_version,
+            "replay_ratio": self.samples / inserted,
+            "train_ratio_limit": c.train_ratio,
+            "updates_per_s": (len(self.update_times) / sum(self.update_times)
+                              if self.update_times else 0.0),
+            "policy_lag": float(np.mean(self.lags)) if self.lags else 0.0,
+            "encoder_version": self.learner.vae_version,
+            "inbox": self.inbox.qsize(),
         }
+        for k, v in self.metrics.items():
+            if np.isfinite(v):
+                scalars[k] = float(v)
         for cid, st in self.ledger.streams.items():
             scalars[f"chunks/{cid}"] = st.chunks
             scalars[f"gaps/{cid}"] = st.gaps
             scalars[f"missing/{cid}"] = st.missing_chunks
             scalars[f"duplicates/{cid}"] = st.duplicates
             scalars[f"next_seq/{cid}"] = st.next_seq
-        self.rt.publish_stats(scalars)
+        self.rt.publish_stats(scalars, labels={"mode": c.mode, "device": c.device})
+
+    # ---- loop ------------------------------------------------------------------------------
+    def run(self) -> None:
+        a = self.args
+        t = self.rt.topics
+        snap = query_one(self.rt.session, t.snapshot, pb.RepertoireSnapshot, timeout_s=1.0)
+        if snap is not None:
+            self._on_snapshot(snap, t.snapshot)
+        self.publish_weights()
+        if self.learned:
+            self.publish_encoder()
+        print(f"LEARNER READY mode={self.cfg.learner.mode} updates={self.learner.updates}",
+              flush=True)
+        last_stats = last_weights = last_ckpt = time.monotonic()
+        while not self.rt.stop.is_set():
+            trained = self.can_train() and self.train_once()
+            self._drain(0.0 if trained else 0.05)
+            now = time.monotonic()
+            if now - last_stats >= 1.0 / a.stats_hz:
+                self.publish_stats()
+                last_stats = now
+            if trained and now - last_weights >= a.publish_every_s:
+                self.publish_weights()
+                last_weights = now
+            if now - last_ckpt >= a.checkpoint_every_s:
+                self.checkpoint()
+                last_ckpt = now
 
     def close(self) -> None:
-        try:
-            self.sub.undeclare()
-        except Exception:
-            pass
+        for h in (*self.subs, *self.queryables):
+            try:
+                h.undeclare()
+            except Exception:
+                pass
         while not self.inbox.empty():
             self._admit(self.inbox.get_nowait())
         self.writer.close()
+        self.checkpoint()
         self.rt.close()

@@ -1,0 +1,1 @@
+"""The dashboard's panels; each owns its viser handles and has an ``update`` called by the loop."""
