@@ -29,7 +29,8 @@ from safetensors.torch import save as st_save
 
 from proto import codec
 from proto import ursa_pb2 as pb
-from services.common.bus import publisher, query_one, safe_handler
+from proto.topics import Topics
+from services.common.bus import Presence, publisher, query_one, safe_handler
 from services.common.config import BusConfig, RunConfig, config_hash, save_resolved
 from services.common.runtime import ServiceRuntime
 from services.learner.ingest import IngestLedger
@@ -118,6 +119,7 @@ class LearnerService:
                 safe_handler(pb.RepertoireSnapshot, self._on_snapshot, self.rt.drops,
                              args.run.run_id)),
         ]
+        self.presence = Presence(self.rt.session, t.alive("collector"))
         self.queryables = [self.rt.session.declare_queryable(t.weights, self._on_weights_query)]
         if self.learned:
             self.queryables.append(
@@ -283,6 +285,7 @@ class LearnerService:
             "replay_steps": len(self.replay),
             "ingested_steps": self.ledger.total_steps,
             "collectors_seen": len(self.ledger.streams),
+            "collectors_alive": len(self.presence.alive()),
             "updates": self.learner.updates,
             "policy_version": self.weights_version,
             "replay_ratio": self.samples / inserted,
@@ -302,7 +305,9 @@ class LearnerService:
             scalars[f"missing/{cid}"] = st.missing_chunks
             scalars[f"duplicates/{cid}"] = st.duplicates
             scalars[f"next_seq/{cid}"] = st.next_seq
-        self.rt.publish_stats(scalars, labels={"mode": c.mode, "device": c.device})
+        alive = sorted(Topics.last_chunk(k) for k in self.presence.alive())
+        self.rt.publish_stats(scalars, labels={"mode": c.mode, "device": c.device,
+                                               "collectors_alive": ",".join(alive)})
 
     # ---- loop ------------------------------------------------------------------------------
     def run(self) -> None:
@@ -332,6 +337,7 @@ class LearnerService:
                 last_ckpt = now
 
     def close(self) -> None:
+        self.presence.undeclare()
         for h in (*self.subs, *self.queryables):
             try:
                 h.undeclare()

@@ -103,13 +103,22 @@ class RepertoireService:
         self.inbox.put(np.asarray(feats, np.float32))
 
     def _on_encoder(self, msg: pb.EncoderWeights, key: str) -> None:
+        from safetensors.torch import load as st_load
+
         from ursa.vae import VAE  # torch only where phi is learned
 
         with self.lock:
             current = self.rep.encoder_version
         if self.encoder is not None and msg.version <= current:
             return
-        enc = VAE.from_weights_bytes(msg.safetensors)
+        c, lc = self.cfg.repertoire, self.cfg.learner
+        assert c.input_dim is not None
+        enc = VAE(c.input_dim, c.dim, lc.vae_units, lc.vae_layers)
+        try:
+            enc.load_state_dict(st_load(msg.safetensors), strict=True)
+        except Exception as e:
+            raise codec.BadMessage(f"encoder weights {msg.version} do not fit: {e}") from e
+        enc.eval()
         self.encoder = enc
         with self.lock:
             self.rep.reencode(enc.encode, int(msg.version))

@@ -30,6 +30,7 @@ standing pose, -1 and +1 the ends of ``[joint_low, joint_high]``, piecewise line
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 from itertools import chain
 from operator import itemgetter, mul
@@ -240,6 +241,7 @@ class A1Env(gym.Env[np.ndarray, np.ndarray]):
         self._reset_filter()
 
         self._prev_action = self._stand_action.copy()
+        self._prev_list: list[float] = self._prev_action.tolist()
         self._steps = 0
         self._reset_calls = 0
         self._rescues = 0
@@ -308,18 +310,20 @@ class A1Env(gym.Env[np.ndarray, np.ndarray]):
         return float(power) * self._dt
 
     def _read_state(self) -> None:
-        """Read the simulator once (batched calls) and cache what obs, rewards and features use."""
+        """Read the simulator once (batched calls) and cache what obs, rewards and features use.
+
+        The cache holds plain Python floats: for 3- to 12-vectors that is several times cheaper
+        than numpy, and this runs every control step.
+        """
         cid, robot = self._cid, self._robot
         st = pb.getJointStates(robot, self._joint_ids, physicsClientId=cid)
-        self._q = np.fromiter(map(_pos, st), np.float64, 12)
-        self._qd = np.fromiter(map(_vel, st), np.float64, 12)
-        pos, orn = pb.getBasePositionAndOrientation(robot, physicsClientId=cid)
-        lin, ang = pb.getBaseVelocity(robot, physicsClientId=cid)
-        self._pos, self._orn = pos, orn
-        self._rot = np.asarray(pb.getMatrixFromQuaternion(orn)).reshape(3, 3)
-        self._lin_world = np.asarray(lin)
-        self._ang_world = np.asarray(ang)
-        contacts = np.zeros(4, dtype=np.float32)
+        self._q: list[float] = list(map(_pos, st))
+        self._qd: list[float] = list(map(_vel, st))
+        self._pos, self._orn = pb.getBasePositionAndOrientation(robot, physicsClientId=cid)
+        self._lin, self._ang = pb.getBaseVelocity(robot, physicsClientId=cid)
+        # body-to-world rotation, row-major: column k (m[k], m[3+k], m[6+k]) is body axis k
+        self._m = pb.getMatrixFromQuaternion(self._orn)
+        contacts = [0.0, 0.0, 0.0, 0.0]
         slot = self._foot_slot
         for cp in pb.getContactPoints(robot, self._plane, physicsClientId=cid):
             k = slot.get(cp[3])
@@ -328,16 +332,23 @@ class A1Env(gym.Env[np.ndarray, np.ndarray]):
         self._contacts = contacts
 
     def _obs(self) -> np.ndarray:
-        rot = self._rot
-        obs = np.empty(OBS_DIM, dtype=np.float32)
-        obs[0:12] = self._q
-        obs[12:24] = self._qd
-        obs[24:27] = -rot[2]  # R^T (0, 0, -1): minus the third row of the body-to-world matrix
-        obs[27:30] = self._ang_world @ rot
-        obs[30:33] = self._lin_world @ rot
-        obs[33] = self._pos[2]
-        obs[34:46] = self._prev_action
-        return obs
+        m = self._m
+        ax, ay, az = self._ang
+        lx, ly, lz = self._lin
+        # gravity in the base frame is R^T (0, 0, -1); velocities are rotated by R^T
+        base = [
+            -m[6],
+            -m[7],
+            -m[8],
+            m[0] * ax + m[3] * ay + m[6] * az,
+            m[1] * ax + m[4] * ay + m[7] * az,
+            m[2] * ax + m[5] * ay + m[8] * az,
+            m[0] * lx + m[3] * ly + m[6] * lz,
+            m[1] * lx + m[4] * ly + m[7] * lz,
+            m[2] * lx + m[5] * ly + m[8] * lz,
+            self._pos[2],
+        ]
+        return np.array(self._q + self._qd + base + self._prev_list, dtype=np.float32)
 
     def _map_action(self, a: np.ndarray) -> np.ndarray:
         """Joint targets (12,) in rad for a clipped action a (12,)."""
@@ -374,7 +385,12 @@ class A1Env(gym.Env[np.ndarray, np.ndarray]):
     def reset(
         self, *, seed: int | None = None, options: dict[str, Any] | None = None
     ) -> tuple[np.ndarray, dict[str, Any]]:
-        """Return the current observation; the simulation is never reset (``ursa.envs.base``)."""
+        """Return the current observation; the simulation is never reset (``ursa.envs.base``).
+
+        ``seed`` only seeds gymnasium's ``self.np_random``, which the simulation does not use:
+        the env is seeded once, at construction.
+        """
+        super().reset(seed=seed)
         self._reset_calls += 1
         info = {"reset_calls": self._reset_calls - 1, "step": self._steps, "rescues": self._rescues}
         return self._obs(), info
@@ -387,15 +403,16 @@ class A1Env(gym.Env[np.ndarray, np.ndarray]):
         self._read_state()
         self._steps += 1
 
-        r_upr = tasks.upright_reward(float(self._rot[2, 2]))
-        v_fwd, v_lat, yaw_rate = tasks.heading_velocity(self._rot, self._lin_world, self._ang_world)
+        m = self._m
+        r_upr = tasks.upright_reward(m[8])
+        v_fwd, v_lat, yaw_rate = tasks.heading_velocity((m[0], m[3], m[6]), self._lin, self._ang[2])
         terms: dict[str, float] = {"upr": r_upr}
         if c.task == "forward":
             terms["velx"], terms["vely"], terms["yaw"] = tasks.velocity_terms(
                 v_fwd, v_lat, yaw_rate, c.target_speed, c.yaw_rate_scale
             )
         else:
-            dev = tasks.posture_deviation(self._q, self._stand, self._low, self._high)
+            dev = tasks.posture_deviation(np.array(self._q), self._stand, self._low, self._high)
             terms["hip"], terms["upper"], terms["lower"] = tasks.posture_terms(r_upr, dev)
         terms["speed"] = tasks.speed_penalty(self._qd)
         terms["work"] = r_work
@@ -405,14 +422,12 @@ class A1Env(gym.Env[np.ndarray, np.ndarray]):
         else:
             reward, cost, safe = tasks.posture_reward(terms)
         self._prev_action = a
+        self._prev_list = a.tolist()
 
-        vae_input = np.empty(13, dtype=np.float32)
-        vae_input[:12] = self._q
-        vae_input[12] = self._pos[2]
         features = {
-            "vae_input": vae_input,
+            "vae_input": np.array([*self._q, self._pos[2]], dtype=np.float32),
             "velocity": np.array([v_fwd, yaw_rate], dtype=np.float32),
-            "contacts": self._contacts,
+            "contacts": np.array(self._contacts, dtype=np.float32),
         }
 
         bad = (not safe) if c.rescue_on == "unsafe" else r_upr <= tasks.GATE
@@ -431,7 +446,7 @@ class A1Env(gym.Env[np.ndarray, np.ndarray]):
             "rescued": rescued,
             "step": self._steps,
             # for live views (after a rescue: the righted pose)
-            "joint_angles": self._q,
+            "joint_angles": np.array(self._q),
             "base_position": np.asarray(self._pos),
             "base_orientation": np.asarray(self._orn),
         }
@@ -452,7 +467,7 @@ class A1Env(gym.Env[np.ndarray, np.ndarray]):
 
     def _rescue(self) -> None:
         """Right the robot in place: keep x, y and heading, stand it up, zero its velocity."""
-        yaw = math.atan2(float(self._rot[1, 0]), float(self._rot[0, 0]))
+        yaw = math.atan2(self._m[3], self._m[0])
         self._place_standing(float(self._pos[0]), float(self._pos[1]), yaw)
         self._rescues += 1
         self._unsafe_run = 0
@@ -530,17 +545,20 @@ class A1Env(gym.Env[np.ndarray, np.ndarray]):
 
     def joint_angles(self) -> np.ndarray:
         """The 12 joint angles (rad) after the last step."""
-        return self._q.copy()
+        return np.array(self._q)
 
     def place(
         self,
-        position: tuple[float, float, float] | None = None,
-        orientation: tuple[float, float, float, float] | None = None,
-        linear_velocity: tuple[float, float, float] | None = None,
-        angular_velocity: tuple[float, float, float] | None = None,
-        joint_angles: np.ndarray | None = None,
+        position: Sequence[float] | None = None,
+        orientation: Sequence[float] | None = None,
+        linear_velocity: Sequence[float] | None = None,
+        angular_velocity: Sequence[float] | None = None,
+        joint_angles: Sequence[float] | np.ndarray | None = None,
     ) -> np.ndarray:
         """Move the robot (tests, evaluations, demos); what is None is kept. Returns the obs.
+
+        position (3,) m and orientation (x, y, z, w) of the base, velocities (3,) in the world
+        frame, joint_angles (12,) rad (frozen joints keep their angle).
 
         This is not a reset: counters, the previous action and damage are untouched.
         """
@@ -553,8 +571,8 @@ class A1Env(gym.Env[np.ndarray, np.ndarray]):
                 physicsClientId=cid,
             )
         if linear_velocity is not None or angular_velocity is not None:
-            lin = list(linear_velocity) if linear_velocity is not None else self._lin_world
-            ang = list(angular_velocity) if angular_velocity is not None else self._ang_world
+            lin = linear_velocity if linear_velocity is not None else self._lin
+            ang = angular_velocity if angular_velocity is not None else self._ang
             pb.resetBaseVelocity(robot, list(lin), list(ang), physicsClientId=cid)
         if joint_angles is not None:
             for i, (j, q) in enumerate(zip(self._joint_ids, joint_angles, strict=True)):

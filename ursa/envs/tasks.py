@@ -29,6 +29,8 @@ safe iff all four posture terms exceed 0.7.
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
+from operator import mul
 
 import numpy as np
 
@@ -51,22 +53,23 @@ def upright_reward(up_z: float) -> float:
 
 
 def heading_velocity(
-    rot: np.ndarray, lin_vel: np.ndarray, ang_vel: np.ndarray
+    body_x: Sequence[float] | np.ndarray, lin_vel: Sequence[float] | np.ndarray, yaw_rate: float
 ) -> tuple[float, float, float]:
     """Forward, lateral and yaw velocity in the heading frame.
 
-    rot (3, 3): body-to-world rotation matrix; lin_vel (3,), ang_vel (3,): world frame.
-    The heading is the body x axis projected on the ground plane (normalised); when that axis is
+    body_x (3,): the body x axis in the world frame (first column of the body-to-world
+    rotation); lin_vel (3,): world-frame base velocity; yaw_rate: world-z angular velocity.
+    The heading is body_x projected on the ground plane (normalised); when that axis is
     vertical the heading is undefined and both planar velocities are reported as 0.
     Returns (v_fwd, v_lat, yaw_rate); v_lat is positive to the robot's left.
     """
-    hx, hy = float(rot[0, 0]), float(rot[1, 0])
+    hx, hy = float(body_x[0]), float(body_x[1])
     norm = math.hypot(hx, hy)
     vx, vy = float(lin_vel[0]), float(lin_vel[1])
     if norm < 1e-6:
-        return 0.0, 0.0, float(ang_vel[2])
+        return 0.0, 0.0, float(yaw_rate)
     hx, hy = hx / norm, hy / norm
-    return hx * vx + hy * vy, -hy * vx + hx * vy, float(ang_vel[2])
+    return hx * vx + hy * vy, -hy * vx + hx * vy, float(yaw_rate)
 
 
 def velocity_terms(
@@ -79,9 +82,9 @@ def velocity_terms(
     return r_velx, r_vely, r_yaw
 
 
-def speed_penalty(qd: np.ndarray) -> float:
+def speed_penalty(qd: Sequence[float] | np.ndarray) -> float:
     """r_speed = sum of squared joint velocities; qd (J,)."""
-    return float(np.dot(qd, qd))
+    return float(sum(map(mul, qd, qd)))
 
 
 def work_penalty(tau: np.ndarray, qd: np.ndarray, dt: float) -> float:
@@ -147,8 +150,6 @@ def posture_reward(terms: dict[str, float]) -> tuple[float, float, bool]:
     """
     upr, hip, upper, lower = terms["upr"], terms["hip"], terms["upper"], terms["lower"]
     reward = upr + hip + upper + lower - W_REG * (terms["speed"] + terms["work"] + terms["smooth"])
-    cost = (
-        max(GATE - upr, 0.0) + max(GATE - hip, 0.0) + max(GATE - upper, 0.0) + (GATE - lower)
-    )
+    cost = max(GATE - upr, 0.0) + max(GATE - hip, 0.0) + max(GATE - upper, 0.0) + (GATE - lower)
     safe = upr > GATE and hip > GATE and upper > GATE and lower > GATE
     return reward, cost, safe

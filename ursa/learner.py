@@ -1,0 +1,568 @@
+"""The URSA learner (paper Alg. 2): world model, then imagination with V, ψ, C, λ1, λ2 and π,
+then the VAE (``ursa`` mode). Pure core code: a service feeds it replay batches and repertoire
+snapshots, and ships :meth:`Learner.policy_weights_bytes` to collectors.
+
+One ``train_step``:
+
+1. World model on the replayed batch (B, T): KL-balanced RSSM, decoder, reward, cost, φ heads.
+   φ targets are the replay's ``features`` (``ursa-supervised``) or the published VAE encoder
+   applied to them (``ursa``).
+2. Imagination: from the B·T posterior states (or ``imag_starts`` of them), each with its own
+   skill z drawn from the repertoire's KDE, H steps of the actor in the model.
+3. λ-returns of the reward (V), of (1 − γ)·φ (m = (1 − γ)ψ) and of the cost (C), bootstrapped
+   from the slow critics. The actor maximises J_π (§4.1) by backpropagating through the
+   dynamics; the critics regress the returns; λ1 and λ2 are trained by binary cross-entropy to
+   predict whether ‖m − z‖_Σ > δ and C > 0.
+4. ``ursa`` mode: one VAE step on the repertoire's stored inputs; a new encoder version is
+   published every ``vae_publish_every`` updates.
+
+See docs/learner.md for the choices and their reasons.
+"""
+
+from __future__ import annotations
+
+import copy
+import os
+import tempfile
+import time
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import Any, Protocol
+
+import numpy as np
+import torch
+from torch import nn
+
+from ursa import kde
+from ursa.agent import (
+    Actor,
+    Multiplier,
+    ReturnNorm,
+    SFCritic,
+    TwoHotCritic,
+    actor_objective,
+    lambda_return,
+    mahalanobis,
+)
+from ursa.learner_config import LearnerConfig
+from ursa.policy import pack_policy_weights
+from ursa.vae import VAE
+from ursa.world_model import WorldModel
+
+
+class _RepertoireLike(Protocol):
+    skills: np.ndarray
+    inputs: np.ndarray
+    cov: np.ndarray
+    encoder_version: int
+
+    def delta(self) -> float: ...
+
+
+@dataclass(frozen=True)
+class SkillSnapshot:
+    """What the learner needs from the repertoire: the KDE (points + Σ), δ and, for a learned
+    φ, the stored VAE inputs."""
+
+    skills: np.ndarray
+    """Stored skills (N, D)."""
+    cov: np.ndarray
+    """KDE kernel covariance Σ (D, D); also the metric of the skill distance and of δ."""
+    delta: float
+    """δ in that metric."""
+    inputs: np.ndarray | None = None
+    """VAE inputs (N, F) of the stored skills (``ursa`` mode), else None."""
+    version: int = 0
+    """Encoder version the skills are encoded with."""
+
+    @classmethod
+    def from_repertoire(cls, rep: _RepertoireLike) -> SkillSnapshot:
+        """Snapshot of an ``ursa.repertoire.Repertoire``."""
+        inputs = rep.inputs
+        return cls(
+            skills=np.asarray(rep.skills, np.float64),
+            cov=np.asarray(rep.cov, np.float64),
+            delta=float(rep.delta()),
+            inputs=np.asarray(inputs, np.float64) if inputs.shape[-1] else None,
+            version=int(rep.encoder_version),
+        )
+
+
+def _slow_copy(net: nn.Module) -> nn.Module:
+    slow = copy.deepcopy(net)
+    slow.requires_grad_(False)
+    return slow
+
+
+@torch.no_grad()
+def _ema(slow: nn.Module, fast: nn.Module, rate: float) -> None:
+    for ps, pf in zip(slow.parameters(), fast.parameters(), strict=True):
+        ps.lerp_(pf, rate)
+
+
+def _clip_step(opt: torch.optim.Optimizer, params: list[nn.Parameter], clip: float) -> float:
+    norm = float(torch.nn.utils.clip_grad_norm_(params, clip))
+    opt.step()
+    return norm
+
+
+class Learner:
+    """World model + actor-critic + multipliers (+ VAE); see the module docstring.
+
+    obs_dim, act_dim: env sizes. feat_in_dim: F, the width of the replay's ``features`` (the
+    VAE input in ``ursa`` mode, φ itself in ``ursa-supervised``; ignored by ``daydreamer``).
+    skill_dim: D; defaults to F (supervised), ``config.skill_dim`` (ursa), 0 (daydreamer).
+    """
+
+    def __init__(
+        self,
+        config: LearnerConfig,
+        obs_dim: int,
+        act_dim: int,
+        feat_in_dim: int,
+        skill_dim: int | None = None,
+    ) -> None:
+        c = config
+        self.config = c
+        self.obs_dim, self.act_dim, self.feat_in_dim = obs_dim, act_dim, feat_in_dim
+        if not c.uses_skills:
+            skill_dim = 0
+        elif skill_dim is None:
+            skill_dim = c.skill_dim if c.mode == "ursa" else feat_in_dim
+        self.skill_dim = int(skill_dim)
+        self.device = torch.device(c.device)
+        self.profile = False
+        """Synchronise the device around each timed phase (accurate GPU timings, slower)."""
+        dev = self.device
+        skills_on = c.uses_skills
+        with torch.random.fork_rng(devices=[]):
+            torch.manual_seed(c.seed)
+            self.wm = WorldModel(c, obs_dim, act_dim, self.skill_dim, cost_head=skills_on).to(dev)
+            f, d = self.wm.feat_dim, self.skill_dim
+            self.actor = Actor(c, f, d, act_dim).to(dev)
+            bins = self.wm.bins
+            self.value = TwoHotCritic(c, f, d, bins).to(dev)
+            self.value_slow = _slow_copy(self.value)
+            self.sf: SFCritic | None = None
+            self.cost: TwoHotCritic | None = None
+            self.lam1: Multiplier | None = None
+            self.lam2: Multiplier | None = None
+            if skills_on:
+                self.sf = SFCritic(c, f, d).to(dev)
+                self.cost = TwoHotCritic(c, f, d, bins).to(dev)
+                self.lam1 = Multiplier(c, f, d).to(dev)
+                self.lam2 = Multiplier(c, f, d).to(dev)
+            self.sf_slow = _slow_copy(self.sf) if self.sf is not None else None
+            self.cost_slow = _slow_copy(self.cost) if self.cost is not None else None
+            self.vae: VAE | None = None
+            self.vae_pub: VAE | None = None
+            if c.mode == "ursa":
+                self.vae = VAE(feat_in_dim, d, c.vae_units, c.vae_layers).to(dev)
+                self.vae_pub = _slow_copy(self.vae)  # type: ignore[assignment]
+        self.retnorm_v = ReturnNorm(c.retnorm_rate, c.retnorm_limit).to(dev)
+        self.retnorm_c = ReturnNorm(c.retnorm_rate, c.retnorm_limit).to(dev)
+
+        def adam(mods: list[nn.Module], lr: float, eps: float) -> torch.optim.Adam:
+            return torch.optim.Adam([p for m in mods for p in m.parameters()], lr=lr, eps=eps)
+
+        self.critics: list[nn.Module] = [m for m in (self.value, self.sf, self.cost) if m]
+        self.model_opt = adam([self.wm], c.model_lr, c.model_eps)
+        self.actor_opt = adam([self.actor], c.actor_lr, c.ac_eps)
+        self.critic_opt = adam(self.critics, c.critic_lr, c.ac_eps)
+        self.lagrange_opt = (
+            adam([self.lam1, self.lam2], c.lagrange_lr, c.ac_eps)  # type: ignore[list-item]
+            if self.lam1 is not None
+            else None
+        )
+        self.vae_opt = adam([self.vae], c.vae_lr, c.model_eps) if self.vae is not None else None
+        self.gen = torch.Generator(device=dev).manual_seed(c.seed)
+        self.np_rng = np.random.default_rng(c.seed)
+        self.updates = 0
+        """Train steps done."""
+        self.vae_version = 0
+        """Published encoder versions (0: the initial encoder)."""
+
+    # --- helpers -------------------------------------------------------------------------------
+
+    def _sync(self) -> None:
+        if self.profile and self.device.type == "cuda":
+            torch.cuda.synchronize(self.device)
+
+    def _tensors(self, batch: dict[str, np.ndarray]) -> dict[str, torch.Tensor]:
+        dev = self.device
+        out = {
+            k: torch.as_tensor(np.asarray(batch[k], np.float32), device=dev)
+            for k in ("obs", "action", "reward")
+        }
+        b, t = out["reward"].shape
+        out["cost"] = torch.as_tensor(
+            np.asarray(batch["cost"], np.float32) if "cost" in batch else np.zeros((b, t), np.float32),
+            device=dev,
+        )
+        out["is_first"] = torch.as_tensor(np.asarray(batch["is_first"], bool), device=dev)
+        if self.config.uses_skills and "features" in batch:
+            out["features"] = torch.as_tensor(np.asarray(batch["features"], np.float32), device=dev)
+        return out
+
+    def _phi_targets(self, data: dict[str, torch.Tensor]) -> torch.Tensor | None:
+        if self.config.mode == "ursa-supervised":
+            return data["features"]
+        if self.vae_pub is not None:
+            with torch.no_grad():
+                return self.vae_pub(data["features"])
+        return None
+
+    # --- training ------------------------------------------------------------------------------
+
+    def train_step(
+        self, batch: dict[str, np.ndarray], skills: SkillSnapshot | None = None
+    ) -> dict[str, float]:
+        """One update on a replay batch (dict of (B, T, ...) arrays with ``is_first``) with the
+        repertoire snapshot ``skills`` (required unless ``daydreamer``). Returns scalar metrics,
+        including the seconds spent in each phase (``time/*``)."""
+        c = self.config
+        if c.uses_skills and skills is None:
+            raise ValueError(f"mode {c.mode!r} needs a SkillSnapshot")
+        times: dict[str, float] = {}
+        metrics: dict[str, torch.Tensor | float] = {}
+
+        # 1. world model
+        t0 = time.perf_counter()
+        data = self._tensors(batch)
+        wm_loss, wm_metrics, post = self.wm.loss(data, self._phi_targets(data), self.gen)
+        self.model_opt.zero_grad(set_to_none=True)
+        wm_loss.backward()
+        metrics["wm/grad_norm"] = _clip_step(
+            self.model_opt, list(self.wm.parameters()), c.model_clip
+        )
+        metrics.update(wm_metrics)
+        self._sync()
+        times["wm"] = time.perf_counter() - t0
+
+        # 2. imagination from the posterior states, one KDE skill per start state
+        t0 = time.perf_counter()
+        h = post["h"].detach().flatten(0, 1)
+        z = post["z"].detach().flatten(0, 1)
+        n = h.shape[0]
+        if 0 < c.imag_starts < n:
+            idx = torch.randperm(n, generator=self.gen, device=self.device)[: c.imag_starts]
+            h, z, n = h[idx], z[idx], c.imag_starts
+        if self.skill_dim:
+            assert skills is not None
+            zs = kde.kde_sample(skills.skills, skills.cov, n, self.np_rng)
+            skill = torch.as_tensor(zs, dtype=torch.float32, device=self.device)
+            whiten = torch.as_tensor(
+                kde.whitening_matrix(kde.regularize_cov(skills.cov)),
+                dtype=torch.float32,
+                device=self.device,
+            )
+            delta = float(skills.delta)
+        else:
+            skill = torch.zeros(n, 0, device=self.device)
+            whiten = torch.zeros(0, 0, device=self.device)
+            delta = 0.0
+        traj = self.wm.imagine(
+            h, z, lambda feat: self.actor.sample(feat, skill, self.gen), c.imag_horizon, self.gen
+        )
+        feat = traj.feat
+        hor = c.imag_horizon
+        sk = skill.unsqueeze(0).expand(hor + 1, -1, -1)
+        pred = self.wm.predict(feat[1:])
+        ret_v = lambda_return(
+            pred["reward"], self.value_slow(feat, sk), c.discount, c.return_lambda
+        )
+        self.retnorm_v.update(ret_v)
+        objective = ret_v / self.retnorm_v.scale()
+        weight = c.discount ** torch.arange(hor, device=self.device, dtype=torch.float32)
+        weight = weight.unsqueeze(1)
+        ret_m = ret_c = dist = None
+        if self.sf_slow is not None and self.cost_slow is not None:
+            assert self.lam1 is not None and self.lam2 is not None
+            ret_m = lambda_return(
+                (1.0 - c.discount) * pred["phi"],
+                self.sf_slow(feat, sk),
+                c.discount,
+                c.return_lambda,
+            )
+            dist = mahalanobis(ret_m - skill, whiten)
+            ret_c = lambda_return(
+                pred["cost"], self.cost_slow(feat, sk), c.gamma_cost, c.return_lambda
+            )
+            self.retnorm_c.update(ret_c)
+            with torch.no_grad():
+                lam1 = self.lam1(feat[:-1], sk[:-1])
+                lam2 = self.lam2(feat[:-1], sk[:-1])
+            objective = actor_objective(
+                objective, dist, delta, ret_c / self.retnorm_c.scale(), lam1, lam2
+            )
+            metrics["lambda1/mean"] = lam1.mean()
+            metrics["lambda2/mean"] = lam2.mean()
+            metrics["imag/distance"] = dist.detach().mean()
+            metrics["imag/within_delta"] = (dist.detach() <= delta).float().mean()
+            metrics["imag/cost_return"] = ret_c.detach().mean()
+            metrics["ret/cost_scale"] = self.retnorm_c.scale()
+            metrics["delta"] = delta
+        entropy = -traj.logp
+        actor_loss = -(weight * objective).mean() - c.actor_entropy * (weight * entropy).mean()
+        self._sync()
+        times["imagination"] = time.perf_counter() - t0
+
+        # 3. actor: backprop through the dynamics; only the actor's parameters get gradients
+        t0 = time.perf_counter()
+        params = list(self.actor.parameters())
+        grads = torch.autograd.grad(actor_loss, params)
+        for p, g in zip(params, grads, strict=True):
+            p.grad = g
+        metrics["actor/grad_norm"] = _clip_step(self.actor_opt, params, c.ac_clip)
+        self.actor_opt.zero_grad(set_to_none=True)
+        metrics["actor/loss"] = actor_loss.detach()
+        metrics["actor/entropy"] = entropy.detach().mean()
+        metrics["ret/value"] = ret_v.detach().mean()
+        metrics["ret/value_scale"] = self.retnorm_v.scale()
+        self._sync()
+        times["actor"] = time.perf_counter() - t0
+
+        # 4. critics on the detached rollout, slow copies follow by EMA
+        t0 = time.perf_counter()
+        fd, skd = feat[:-1].detach(), sk[:-1]
+        critic_loss = (weight * self.value.loss(fd, skd, ret_v.detach())).mean()
+        metrics["critic/value"] = critic_loss.detach()
+        if self.sf is not None and self.cost is not None:
+            assert ret_m is not None and ret_c is not None
+            sf_loss = (weight * self.sf.loss(fd, skd, ret_m.detach())).mean()
+            cost_loss = (weight * self.cost.loss(fd, skd, ret_c.detach())).mean()
+            critic_loss = critic_loss + sf_loss + cost_loss
+            metrics["critic/sf"] = sf_loss.detach()
+            metrics["critic/cost"] = cost_loss.detach()
+        self.critic_opt.zero_grad(set_to_none=True)
+        critic_loss.backward()
+        _clip_step(self.critic_opt, [p for m in self.critics for p in m.parameters()], c.ac_clip)
+        _ema(self.value_slow, self.value, c.slow_critic_fraction)
+        if self.sf_slow is not None and self.sf is not None:
+            _ema(self.sf_slow, self.sf, c.slow_critic_fraction)
+        if self.cost_slow is not None and self.cost is not None:
+            _ema(self.cost_slow, self.cost, c.slow_critic_fraction)
+        self._sync()
+        times["critics"] = time.perf_counter() - t0
+
+        # 5. multipliers: rise where the constraint is violated, fall where it holds
+        t0 = time.perf_counter()
+        if self.lam1 is not None and self.lam2 is not None and self.lagrange_opt is not None:
+            assert dist is not None and ret_c is not None
+            viol1 = dist.detach() > delta
+            viol2 = ret_c.detach() > 0.0
+            l1 = (weight * self.lam1.loss(fd, skd, viol1)).mean()
+            l2 = (weight * self.lam2.loss(fd, skd, viol2)).mean()
+            self.lagrange_opt.zero_grad(set_to_none=True)
+            (l1 + l2).backward()
+            lam_params = [*self.lam1.parameters(), *self.lam2.parameters()]
+            _clip_step(self.lagrange_opt, lam_params, c.ac_clip)
+            metrics["lambda1/loss"] = l1.detach()
+            metrics["lambda2/loss"] = l2.detach()
+            metrics["lambda1/violated"] = viol1.float().mean()
+            metrics["lambda2/violated"] = viol2.float().mean()
+        self._sync()
+        times["multipliers"] = time.perf_counter() - t0
+
+        # 6. VAE on the repertoire's inputs (ursa mode)
+        t0 = time.perf_counter()
+        if self.vae is not None and skills is not None and skills.inputs is not None:
+            metrics.update(self._vae_step(skills.inputs))
+        self._sync()
+        times["vae"] = time.perf_counter() - t0
+
+        self.updates += 1
+        if self.vae is not None and self.updates % c.vae_publish_every == 0:
+            self.publish_encoder()
+        out = {k: float(v) for k, v in metrics.items()}
+        out.update({f"time/{k}": v for k, v in times.items()})
+        out["updates"] = float(self.updates)
+        out["vae_version"] = float(self.vae_version)
+        return out
+
+    def _vae_step(self, inputs: np.ndarray) -> dict[str, torch.Tensor]:
+        assert self.vae is not None and self.vae_opt is not None
+        c = self.config
+        if len(inputs) == 0:
+            return {}
+        rows = self.np_rng.integers(0, len(inputs), size=min(c.vae_batch, len(inputs)))
+        x = torch.as_tensor(inputs[rows], dtype=torch.float32, device=self.device)
+        self.vae.update_stats(x)
+        loss, metrics = self.vae.loss(x, c.vae_beta, self.gen)
+        self.vae_opt.zero_grad(set_to_none=True)
+        loss.backward()
+        _clip_step(self.vae_opt, list(self.vae.parameters()), c.model_clip)
+        metrics["vae/loss"] = loss.detach()
+        return metrics
+
+    def publish_encoder(self) -> int:
+        """Copy the training VAE into the published encoder; returns the new version."""
+        if self.vae is None or self.vae_pub is None:
+            raise ValueError("only the ursa mode has an encoder")
+        self.vae_pub.load_state_dict(self.vae.state_dict())
+        self.vae_version += 1
+        return self.vae_version
+
+    # --- inference helpers ---------------------------------------------------------------------
+
+    def encode(self, inputs: np.ndarray) -> np.ndarray:
+        """φ (M, D) of VAE inputs (M, F) with the published encoder (``Repertoire.reencode``)."""
+        if self.vae_pub is None:
+            return np.asarray(inputs, dtype=np.float64)
+        return self.vae_pub.encode(inputs)
+
+    @torch.no_grad()
+    def posterior_feats(self, batch: dict[str, np.ndarray]) -> torch.Tensor:
+        """Model states s (B, T, F) of a replay-like batch (obs, action, is_first)."""
+        data = self._tensors({**batch, "reward": np.zeros(np.shape(batch["is_first"]))})
+        embed = self.wm.encoder(data["obs"])
+        post = self.wm.rssm.observe(embed, data["action"], data["is_first"], self.gen)
+        return self.wm.feat(post["h"], post["z"])
+
+    @torch.no_grad()
+    def multipliers(self, feat: torch.Tensor, skill: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """λ1, λ2 (...) at model states feat (..., F) for skills (..., D) (broadcast)."""
+        if self.lam1 is None or self.lam2 is None:
+            raise ValueError("daydreamer has no multipliers")
+        s = torch.as_tensor(np.asarray(skill, np.float32), device=self.device)
+        s = s.expand(*feat.shape[:-1], self.skill_dim)
+        return self.lam1(feat, s).cpu().numpy(), self.lam2(feat, s).cpu().numpy()
+
+    @torch.no_grad()
+    def critic_values(self, feat: torch.Tensor, skill: np.ndarray) -> dict[str, np.ndarray]:
+        """V (...), m = (1 − γ)ψ (..., D) and C (...) of the online critics at (feat, skill)."""
+        s = torch.as_tensor(np.asarray(skill, np.float32), device=self.device)
+        s = s.expand(*feat.shape[:-1], self.skill_dim)
+        out = {"value": self.value(feat, s).cpu().numpy()}
+        if self.sf is not None and self.cost is not None:
+            out["sf"] = self.sf(feat, s).cpu().numpy()
+            out["cost"] = self.cost(feat, s).cpu().numpy()
+        return out
+
+    @torch.no_grad()
+    def world_model_loss(self, batch: dict[str, np.ndarray]) -> dict[str, float]:
+        """World-model losses on a batch without training (held-out evaluation)."""
+        data = self._tensors(batch)
+        gen = torch.Generator(device=self.device).manual_seed(12345)
+        _, metrics, _ = self.wm.loss(data, self._phi_targets(data), gen)
+        return {k: float(v) for k, v in metrics.items()}
+
+    def policy_weights_bytes(self) -> bytes:
+        """safetensors bytes for :meth:`ursa.policy.Policy.load_weights_bytes` (version =
+        ``updates``)."""
+        mods: dict[str, nn.Module] = {
+            "encoder": self.wm.encoder,
+            "rssm": self.wm.rssm,
+            "actor": self.actor,
+        }
+        if self.vae_pub is not None:
+            mods["vae"] = self.vae_pub
+        return pack_policy_weights(mods, self.updates, self.vae_version)
+
+    # --- checkpoints ---------------------------------------------------------------------------
+
+    def _named_modules(self) -> dict[str, nn.Module]:
+        mods: dict[str, nn.Module | None] = {
+            "wm": self.wm,
+            "actor": self.actor,
+            "value": self.value,
+            "value_slow": self.value_slow,
+            "sf": self.sf,
+            "sf_slow": self.sf_slow,
+            "cost": self.cost,
+            "cost_slow": self.cost_slow,
+            "lam1": self.lam1,
+            "lam2": self.lam2,
+            "vae": self.vae,
+            "vae_pub": self.vae_pub,
+            "retnorm_v": self.retnorm_v,
+            "retnorm_c": self.retnorm_c,
+        }
+        return {k: m for k, m in mods.items() if m is not None}
+
+    def _optimizers(self) -> dict[str, torch.optim.Optimizer]:
+        opts: dict[str, torch.optim.Optimizer | None] = {
+            "model": self.model_opt,
+            "actor": self.actor_opt,
+            "critic": self.critic_opt,
+            "lagrange": self.lagrange_opt,
+            "vae": self.vae_opt,
+        }
+        return {k: o for k, o in opts.items() if o is not None}
+
+    def state_dict(self) -> dict[str, Any]:
+        """Everything needed to resume exactly (tensors, numbers, strings only)."""
+        return {
+            "format": "ursa-learner-1",
+            "config": asdict(self.config),
+            "dims": [self.obs_dim, self.act_dim, self.feat_in_dim, self.skill_dim],
+            "modules": {k: m.state_dict() for k, m in self._named_modules().items()},
+            "optimizers": {k: o.state_dict() for k, o in self._optimizers().items()},
+            "updates": self.updates,
+            "vae_version": self.vae_version,
+            "torch_generator": self.gen.get_state(),
+            "numpy_rng": _np_state_to_plain(self.np_rng.bit_generator.state),
+        }
+
+    def load_state_dict(self, state: dict[str, Any]) -> None:
+        """Restore :meth:`state_dict` (same config sizes and dims required)."""
+        if state.get("format") != "ursa-learner-1":
+            raise ValueError("not an URSA learner checkpoint")
+        dims = [self.obs_dim, self.act_dim, self.feat_in_dim, self.skill_dim]
+        if list(state["dims"]) != dims:
+            raise ValueError(f"checkpoint dims {state['dims']} != learner dims {dims}")
+        mods = self._named_modules()
+        if set(state["modules"]) != set(mods):
+            raise ValueError(f"checkpoint modules {sorted(state['modules'])} != {sorted(mods)}")
+        for k, m in mods.items():
+            m.load_state_dict(state["modules"][k])
+        for k, o in self._optimizers().items():
+            o.load_state_dict(state["optimizers"][k])
+        self.updates = int(state["updates"])
+        self.vae_version = int(state["vae_version"])
+        self.gen.set_state(state["torch_generator"].cpu())
+        self.np_rng.bit_generator.state = _np_state_from_plain(state["numpy_rng"])
+
+    def save_checkpoint(self, path: str | os.PathLike[str]) -> None:
+        """Write the checkpoint atomically (temp file + rename); torch format, tensors only."""
+        path = Path(path)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=path.name + ".", suffix=".tmp")
+        os.close(fd)
+        try:
+            torch.save(self.state_dict(), tmp)
+            os.replace(tmp, path)
+        except BaseException:
+            if os.path.exists(tmp):
+                os.unlink(tmp)
+            raise
+
+    def load_checkpoint(self, path: str | os.PathLike[str]) -> None:
+        """Load a checkpoint written by :meth:`save_checkpoint` (``weights_only=True``)."""
+        state = torch.load(path, map_location=self.device, weights_only=True)
+        self.load_state_dict(state)
+
+
+def _np_state_to_plain(state: dict[str, Any]) -> dict[str, Any]:
+    """numpy bit-generator state with its 128-bit integers as decimal strings (so that
+    ``torch.load(weights_only=True)`` reads it back without custom classes)."""
+
+    def conv(v: Any) -> Any:
+        if isinstance(v, dict):
+            return {k: conv(x) for k, x in v.items()}
+        if isinstance(v, (int, np.integer)) and not isinstance(v, bool):
+            return str(int(v))
+        return v
+
+    return conv(state)  # type: ignore[no-any-return]
+
+
+def _np_state_from_plain(state: dict[str, Any]) -> dict[str, Any]:
+    def conv(k: str, v: Any) -> Any:
+        if isinstance(v, dict):
+            return {kk: conv(kk, x) for kk, x in v.items()}
+        if k != "bit_generator" and isinstance(v, str):
+            return int(v)
+        return v
+
+    return {k: conv(k, v) for k, v in state.items()}

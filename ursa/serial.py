@@ -1,0 +1,287 @@
+"""A single-process URSA loop (Alg. 1 and 2 interleaved): the reference behaviour of the
+services, and what the learning tests run.
+
+Each env step: a new KDE skill every ``skill_period`` steps; act with the current policy
+(uniformly random actions during the prefill); record the transition; every ``chunk_len``
+steps the chunk goes to the replay and the features of its safe steps to the repertoire. After
+the prefill the learner trains whenever ``updates · B · T < train_ratio · env steps`` (the
+replay ratio), and the policy receives the learner's weights every ``sync_every`` updates. With
+a learned φ the repertoire re-encodes its inputs whenever the learner publishes an encoder.
+
+``evaluate_skills`` runs a policy on a list of skills in the real env (reset-free: one skill
+after the other, T steps each) and reports what each achieved.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from ursa import kde
+from ursa.envs.base import ResetFreeEnv
+from ursa.learner import Learner, SkillSnapshot
+from ursa.learner_config import LearnerConfig
+from ursa.policy import Policy, PolicyCarry
+from ursa.replay import Replay
+from ursa.repertoire import Repertoire, RepertoireConfig
+
+
+@dataclass(frozen=True)
+class SerialConfig:
+    """Settings of the single-process loop."""
+
+    feature: str = "position"
+    """Key of ``info["features"]`` recorded as the replay's ``features``: φ itself in
+    ``ursa-supervised``, the VAE input in ``ursa`` (e.g. ``vae_input``)."""
+    prefill: int = 2000
+    """Env steps of uniformly random actions before the first update."""
+    skill_period: int = 250
+    """T: env steps between two skills drawn from the repertoire's KDE."""
+    chunk_len: int = 50
+    """Records per replay chunk (as a collector would send them)."""
+    sync_every: int = 20
+    """Updates between two policy weight syncs."""
+    snapshot_every: int = 10
+    """Updates between two repertoire snapshots given to the learner."""
+    replay_capacity: int = 1_000_000
+    """Records the replay keeps."""
+    repertoire_size: int = 5000
+    """N_R."""
+    n_z: int = 100
+    """N_z (sets δ)."""
+    seed: int = 0
+    """Seed of the loop's generator (skills, random actions, replay sampling)."""
+
+
+@dataclass
+class EvalResult:
+    """What each of K skills achieved in the real env."""
+
+    skills: np.ndarray
+    """Target skills (K, D)."""
+    achieved: np.ndarray
+    """Mean feature over the T steps of each skill (K, D)."""
+    distance: np.ndarray
+    """Mahalanobis distance ‖achieved − z‖_Σ (K,)."""
+    returns: np.ndarray
+    """Undiscounted sum of rewards over the T steps (K,)."""
+    violation_rate: np.ndarray
+    """Fraction of unsafe steps (K,)."""
+
+    def within(self, delta: float) -> np.ndarray:
+        """Which skills were achieved within δ (K,) bool."""
+        return self.distance <= delta
+
+
+def evaluate_skills(
+    policy: Policy | None,
+    env: ResetFreeEnv,
+    skills: np.ndarray,
+    steps: int,
+    metric_cov: np.ndarray,
+    feature: str = "position",
+    explore: bool = False,
+    rng: np.random.Generator | None = None,
+) -> EvalResult:
+    """Run each skill (K, D) for ``steps`` env steps in turn, without resets.
+
+    ``policy`` None acts uniformly at random. The achieved skill is the mean of φ over the
+    steps (the policy's φ, i.e. its VAE encoder in ``ursa`` mode, applied to
+    ``info["features"][feature]``); distances use Σ = ``metric_cov``, the metric of δ.
+    """
+    rng = rng or np.random.default_rng(0)
+    skills = np.asarray(skills, np.float64)
+    k = len(skills)
+    obs, _ = env.reset()
+    carry: PolicyCarry | None = policy.initial_carry() if policy is not None else None
+    achieved = np.zeros_like(skills)
+    returns = np.zeros(k)
+    viol = np.zeros(k)
+    for i, z in enumerate(skills):
+        inputs = []
+        for _ in range(steps):
+            if policy is None or carry is None:
+                action = rng.uniform(-1.0, 1.0, env.act_dim)
+            else:
+                action, carry = policy.act(carry, obs, z, explore=explore, rng=rng)
+            obs, reward, _, _, info = env.step(action)
+            inputs.append(np.asarray(info["features"][feature], np.float64))
+            returns[i] += float(reward)
+            viol[i] += 0.0 if info["safe"] else 1.0
+        x = np.stack(inputs)
+        phi = policy.features(x) if policy is not None else x
+        achieved[i] = phi.mean(0)
+    whiten = kde.whitening_matrix(kde.regularize_cov(metric_cov))
+    distance = np.linalg.norm((achieved - skills) @ whiten.T, axis=-1)
+    return EvalResult(skills, achieved, distance, returns, viol / steps)
+
+
+@dataclass
+class SerialLoop:
+    """Collector + repertoire + replay + learner in one process; call :meth:`run`."""
+
+    env: ResetFreeEnv
+    learner_config: LearnerConfig
+    config: SerialConfig = field(default_factory=SerialConfig)
+    stream_id: str = "serial-0"
+
+    def __post_init__(self) -> None:
+        c, lc = self.config, self.learner_config
+        self.feat_in_dim = int(self.env.feature_dims.get(c.feature, 0))
+        if lc.uses_skills and self.feat_in_dim == 0:
+            raise ValueError(f"env has no feature {c.feature!r}")
+        self.learner = Learner(lc, self.env.obs_dim, self.env.act_dim, max(self.feat_in_dim, 1))
+        d = self.learner.skill_dim
+        self.policy = Policy(
+            lc, self.env.obs_dim, self.env.act_dim, d, max(self.feat_in_dim, 1), seed=c.seed + 1
+        )
+        self.policy.load_weights_bytes(self.learner.policy_weights_bytes())
+        self.repertoire: Repertoire | None = None
+        if lc.uses_skills:
+            self.repertoire = Repertoire(
+                RepertoireConfig(
+                    size=c.repertoire_size,
+                    dim=d,
+                    n_z=c.n_z,
+                    input_dim=self.feat_in_dim if lc.mode == "ursa" else None,
+                )
+            )
+        self.replay = Replay(c.replay_capacity)
+        self.rng = np.random.default_rng(c.seed)
+        self.obs, _ = self.env.reset()
+        self.carry: PolicyCarry = self.policy.initial_carry()
+        self.skill = np.zeros(d)
+        self.env_steps = 0
+        self.unsafe_steps = 0
+        self.history: list[dict[str, float]] = []
+        self._chunk: list[dict[str, Any]] = []
+        self._chunk_first = 0
+        self._snapshot: SkillSnapshot | None = None
+
+    # --- collection ----------------------------------------------------------------------------
+
+    def _new_skill(self) -> np.ndarray:
+        rep = self.repertoire
+        if rep is None:
+            return np.zeros(0)
+        if len(rep) < 2:
+            return np.zeros(rep.config.dim)
+        return rep.sample(1, self.rng)[0]
+
+    def _flush(self) -> None:
+        if not self._chunk:
+            return
+        chunk = {k: np.stack([r[k] for r in self._chunk]) for k in self._chunk[0]}
+        self.replay.add(self.stream_id, chunk, self._chunk_first)
+        self._chunk_first += len(self._chunk)
+        self._chunk = []
+        rep = self.repertoire
+        if rep is not None:
+            safe = chunk["safe"].astype(bool)
+            if safe.any():
+                x = chunk["features"][safe].astype(np.float64)
+                if self.learner_config.mode == "ursa":
+                    rep.commit_many(self.policy.features(x), x)
+                else:
+                    rep.commit_many(x)
+
+    def collect(self, steps: int) -> None:
+        """Step the env ``steps`` times with the current policy (random during the prefill)."""
+        c = self.config
+        for _ in range(steps):
+            if self.env_steps % c.skill_period == 0:
+                self.skill = self._new_skill()
+            if self.env_steps < c.prefill:
+                action = self.rng.uniform(-1.0, 1.0, self.env.act_dim)
+            else:
+                if self.env_steps == c.prefill:
+                    self.carry = self.policy.initial_carry()
+                action, self.carry = self.policy.act(
+                    self.carry, self.obs, self.skill, explore=True, rng=self.rng
+                )
+            obs, reward, _, _, info = self.env.step(action)
+            feats = info["features"].get(c.feature)
+            self._chunk.append(
+                {
+                    "obs": np.asarray(obs, np.float32),
+                    "action": np.asarray(action, np.float32),
+                    "reward": np.float32(reward),
+                    "cost": np.float32(info["cost"]),
+                    "safe": bool(info["safe"]),
+                    "features": np.asarray(
+                        feats if feats is not None else np.zeros(1), np.float32
+                    ).reshape(-1),
+                    "skill": np.asarray(self.skill, np.float32),
+                }
+            )
+            self.unsafe_steps += 0 if info["safe"] else 1
+            self.obs = obs
+            self.env_steps += 1
+            if len(self._chunk) >= c.chunk_len:
+                self._flush()
+
+    # --- training ------------------------------------------------------------------------------
+
+    def snapshot(self) -> SkillSnapshot | None:
+        """The learner's current view of the repertoire (None without skills)."""
+        if self.repertoire is None:
+            return None
+        return SkillSnapshot.from_repertoire(self.repertoire)
+
+    def train(self, max_updates: int | None = None) -> int:
+        """Run the updates the replay ratio allows now (at most ``max_updates``); returns how
+        many ran."""
+        c, lc = self.config, self.learner_config
+        if self.env_steps < c.prefill or len(self.replay) < lc.seq_len:
+            return 0
+        per_update = lc.batch_size * lc.seq_len
+        done = 0
+        while self.learner.updates * per_update < lc.train_ratio * self.replay.inserted:
+            if max_updates is not None and done >= max_updates:
+                break
+            if self._snapshot is None or self.learner.updates % c.snapshot_every == 0:
+                self._snapshot = self.snapshot()
+            batch = self.replay.sample(lc.batch_size, lc.seq_len, self.rng)
+            metrics = self.learner.train_step(batch, self._snapshot)
+            metrics["env_steps"] = float(self.env_steps)
+            self.history.append(metrics)
+            done += 1
+            rep = self.repertoire
+            if rep is not None and lc.mode == "ursa" and rep.encoder_version != self.learner.vae_version:
+                rep.reencode(self.learner.encode, self.learner.vae_version)
+                self._snapshot = None
+                self.sync_policy()
+            if self.learner.updates % c.sync_every == 0:
+                self.sync_policy()
+        return done
+
+    def sync_policy(self) -> None:
+        """Ship the learner's weights to the policy (as a collector would receive them)."""
+        self.policy.load_weights_bytes(self.learner.policy_weights_bytes())
+
+    def run(
+        self,
+        env_steps: int,
+        max_seconds: float | None = None,
+        callback: Callable[[SerialLoop], None] | None = None,
+        callback_every: int = 1000,
+    ) -> SerialLoop:
+        """Collect ``env_steps`` more env steps, training as the replay ratio allows, or stop
+        after ``max_seconds``. ``callback(loop)`` runs every ``callback_every`` env steps."""
+        start = time.perf_counter()
+        target = self.env_steps + env_steps
+        step = min(self.config.chunk_len, self.config.skill_period)
+        while self.env_steps < target:
+            self.collect(min(step, target - self.env_steps))
+            self.train()
+            if callback is not None and self.env_steps % callback_every < step:
+                callback(self)
+            if max_seconds is not None and time.perf_counter() - start > max_seconds:
+                break
+        self._flush()
+        self.sync_policy()
+        return self
