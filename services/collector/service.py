@@ -94,6 +94,7 @@ class Collector:
         self.backlog_dropped = 0
         self._weights_lock = threading.Lock()
         self._pending_weights: pb.PolicyWeights | None = None
+        self._pending_skill: np.ndarray | None = None
         self.sub_weights = self.rt.session.declare_subscriber(
             t.weights, safe_handler(pb.PolicyWeights, self._on_weights, self.rt.drops,
                                     args.run.run_id))
@@ -151,14 +152,23 @@ class Collector:
         self.log.info("policy weights version %d", self.policy_version)
 
     def _request_skill(self) -> None:
+        """Ask the repertoire for a KDE skill without waiting: the reply lands in a slot that the
+        loop picks up (the robot keeps its previous skill meanwhile)."""
         req = pb.SkillRequest(header=self.rt.header(), n=1)
-        reply = query_one(self.rt.session, self.rt.topics.sample, pb.SkillReply,
-                          codec.encode(req), timeout_s=1.0)
-        if reply is None or reply.error:
-            self.skill_source = "none"
+        try:
+            self.rt.session.get(self.rt.topics.sample, self._on_skill_reply,
+                                payload=codec.encode(req), timeout=2.0)
+        except Exception as e:  # a closed session at shutdown
+            self.log.debug("skill request failed: %s", e)
+
+    def _on_skill_reply(self, reply: Any) -> None:
+        if reply.ok is None:
             return
         try:
-            skills = codec.from_array(reply.skills)
+            msg = codec.decode(pb.SkillReply, reply.ok.payload.to_bytes())
+            if msg.error:
+                return
+            skills = codec.from_array(msg.skills)
         except codec.BadMessage as e:
             self.rt.drops.add("malformed")
             self.log.warning("bad skill reply: %s", e)
@@ -166,8 +176,15 @@ class Collector:
         if skills.shape != (1, self.skill_dim) or not np.all(np.isfinite(skills)):
             self.rt.drops.add("invalid")
             return
-        self.skill = skills[0].astype(np.float32)
-        self.skill_source = "kde"
+        with self._weights_lock:
+            self._pending_skill = skills[0].astype(np.float32)
+
+    def _maybe_take_skill(self) -> None:
+        with self._weights_lock:
+            z, self._pending_skill = self._pending_skill, None
+        if z is not None:
+            self.skill = z
+            self.skill_source = "kde"
 
     # ---- acting --------------------------------------------------------------------------
     def act(self, obs: np.ndarray, explore: bool = True) -> np.ndarray:
@@ -199,6 +216,7 @@ class Collector:
                 break
             if self.step_count % cfg.skill_period == 0:
                 self._request_skill()
+            self._maybe_take_skill()
             self._maybe_load_weights()
             action = self.act(obs)
             next_obs, reward, _, _, info = self.env.step(action)

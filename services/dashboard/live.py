@@ -140,7 +140,8 @@ class SnapshotView:
         return float(np.sqrt(diff @ diff))
 
     def nearest(self, z: np.ndarray, k: int = 1) -> tuple[np.ndarray, np.ndarray]:
-        """Rows (k,) and Mahalanobis distances (k,) of the k skills nearest z (D,), nearest first."""
+        """Rows (k,) and Mahalanobis distances (k,) of the k skills nearest z (D,),
+        nearest first (ties: lower id first)."""
         if self.size == 0:
             return np.zeros(0, np.int64), np.zeros(0)
         d = self.mahalanobis(z)
@@ -152,7 +153,7 @@ class SnapshotView:
 
 @dataclass(frozen=True, eq=False)
 class StatsEntry:
-    """The latest ``Stats`` of one (service, id), decoded; arrays that fail to decode are left out."""
+    """The latest ``Stats`` of one (service, id), decoded (undecodable arrays left out)."""
 
     service: str
     sid: str
@@ -262,15 +263,13 @@ class LiveState:
                 self.history[(e.service, e.sid, k)] = series
             series.add(e.stamp, v)
 
-    def on_snapshot(self, msg: pb.RepertoireSnapshot, key: str = "") -> bool:
+    def on_snapshot(self, msg: pb.RepertoireSnapshot, key: str = "") -> None:
         """Keep the snapshot if it is newer (by version, or a restarted repertoire by stamp)."""
         view = SnapshotView.from_msg(msg)
         with self._lock:
             cur = self.snapshot
-            if cur is not None and view.version <= cur.version and view.stamp <= cur.stamp:
-                return False
-            self.snapshot = view
-            return True
+            if cur is None or view.version > cur.version or view.stamp > cur.stamp:
+                self.snapshot = view
 
     # ---- reads ---------------------------------------------------------------------------
     def latest_snapshot(self) -> SnapshotView | None:

@@ -96,6 +96,8 @@ class LearnerService:
         self.weights_version = 0
         self.metrics: dict[str, float] = {}
         self.lags: deque[int] = deque(maxlen=200)
+        self.latencies: deque[float] = deque(maxlen=2000)
+        """Seconds from a chunk's send stamp to its receipt (recent chunks)."""
         self.update_times: deque[float] = deque(maxlen=100)
 
         self.replay_dir = args.run.dir / "replay"
@@ -157,6 +159,7 @@ class LearnerService:
 
     # ---- bus callbacks ---------------------------------------------------------------------
     def _on_chunk(self, msg: pb.TransitionChunk, key: str) -> None:
+        self.latencies.append(time.time() - msg.header.stamp)
         obs = codec.from_array(msg.obs)
         if obs.ndim != 2 or obs.shape[0] == 0:
             raise codec.BadMessage(f"chunk obs of shape {obs.shape}")
@@ -296,6 +299,10 @@ class LearnerService:
             "encoder_version": self.learner.vae_version,
             "inbox": self.inbox.qsize(),
         }
+        if self.latencies:
+            lat = np.asarray(self.latencies) * 1e3
+            scalars["chunk_latency_p50_ms"] = float(np.percentile(lat, 50))
+            scalars["chunk_latency_p99_ms"] = float(np.percentile(lat, 99))
         for k, v in self.metrics.items():
             if np.isfinite(v):
                 scalars[k] = float(v)

@@ -177,10 +177,10 @@ class RepertoirePanel:
             "/skills/selected", radius=0.05, color=_SELECTED_COLOR, visible=False)
         self.box = server.scene.add_box(
             "/skills/box", color=(180, 180, 180), dimensions=(2 * half_size,) * 3,
-            wireframe=True, position=self.origin, opacity=0.3)
+            wireframe=True, position=np.asarray(self.origin), opacity=0.3)
         self.title = server.scene.add_label(
             "/skills/title", "skill space (no data yet)",
-            position=np.asarray(self.origin) + (-half_size, -half_size, half_size + 0.15))
+            position=np.asarray(self.origin) + np.array([-half_size, -half_size, half_size + 0.15]))
 
         self.color_by.on_update(lambda _: self._mark_dirty())
         self.point_size.on_update(lambda _: self._mark_dirty())
@@ -306,7 +306,7 @@ class RepertoirePanel:
         with self.server.atomic():
             if tuple(self.color_by.options) != opts:
                 self.color_by.options = opts
-                self.color_by.value = mode
+                self.color_by.value = mode  # type: ignore[misc]
             if len(rows):
                 self.cloud.points = world.astype(np.float32)
                 self.cloud.colors = colors

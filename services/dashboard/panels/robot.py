@@ -39,7 +39,7 @@ def a1_urdf_path() -> Path | None:
 
 
 def xyzw_to_wxyz(q: np.ndarray) -> tuple[float, float, float, float]:
-    """PyBullet quaternion (x, y, z, w) -> viser (w, x, y, z), normalized; identity if degenerate."""
+    """PyBullet (x, y, z, w) -> viser (w, x, y, z), normalized; identity if degenerate."""
     q = np.asarray(q, np.float64)
     n = float(np.linalg.norm(q))
     if q.shape != (4,) or not np.isfinite(n) or n < 1e-9:
@@ -107,7 +107,7 @@ class RobotPanel:
         if tuple(self.collector.options) != opts:
             current = self.collector.value
             self.collector.options = opts
-            self.collector.value = current if current in opts else opts[0]
+            self.collector.value = current if current in opts else opts[0]  # type: ignore[misc]
 
     def update(self, collectors: list[CollectorInfo]) -> bool:
         """Mirror the selected collector's latest pose; returns True if the model moved."""

@@ -1,0 +1,1 @@
+"""HTTP API of a live URSA run (FastAPI): skills, collectors, stats, health, evaluations."""

@@ -1,0 +1,324 @@
+"""The FastAPI app: skills, collectors, stats, health and evaluations of a live URSA run.
+
+Built by :func:`create_app` from an :class:`~services.api.state.ApiState`, so tests can feed it
+snapshots and stats without a bus. Status codes: 422 for any invalid input (with the reason, in
+FastAPI's validation-error shape), 404 for a skill id that is not in the repertoire, 503 when a
+peer is missing (no snapshot yet, no evaluator alive, the repertoire or evaluator not
+answering). A client's mistake never gets a 500.
+"""
+
+# No ``from __future__ import annotations`` here: FastAPI must resolve the request models that
+# create_app defines locally (their bounds come from the config).
+
+import math
+import time
+from typing import Annotated, Any, NoReturn
+
+import numpy as np
+from fastapi import FastAPI, HTTPException, Path, Query, Request
+from fastapi.exceptions import RequestValidationError
+from fastapi.responses import JSONResponse
+from pydantic import BaseModel, ConfigDict, Field
+
+from proto import codec
+from proto import ursa_pb2 as pb
+from services.api import models as m
+from services.api.state import ApiState
+from services.dashboard.live import SnapshotView, StatsEntry, finite
+from ursa.kde import kde_sample
+
+SERVICES = ("repertoire", "learner", "evaluator", "dashboard", "api")
+MAX_ARRAY_ITEMS = 4096
+
+DESCRIPTION = """\
+Query the skills of a live URSA run, list its collectors, read every service's latest stats,
+and run a skill on the evaluation collector.
+
+The API is its own process (``python -m services.api``): it keeps the latest repertoire
+snapshot and stats from the Zenoh bus, answers reads from them, and forwards
+``POST /skills/sample`` to the repertoire's sample queryable and ``POST /evaluate`` to the
+evaluator's queryable. 422: invalid input; 404: unknown skill; 503: a peer is missing.
+"""
+
+
+def invalid(where: tuple[str | int, ...], msg: str, value: Any = None) -> NoReturn:
+    """Raise a 422 in FastAPI's own validation-error shape."""
+    raise RequestValidationError([{"loc": where, "msg": msg, "type": "value_error",
+                                   "input": value}])
+
+
+def unavailable(reason: str) -> NoReturn:
+    raise HTTPException(503, detail=reason, headers={"Retry-After": "5"})
+
+
+def skill_out(snap: SnapshotView, row: int) -> m.Skill:
+    return m.Skill(id=int(snap.ids[row]), z=[float(v) for v in snap.skills[row]],
+                   age=int(snap.ages[row]), nn_distance=finite(float(snap.nn_dist[row])))
+
+
+def jsonable_array(a: np.ndarray) -> Any:
+    """A small array as nested lists (non-finite floats as null); a large one as its shape."""
+    if a.size > MAX_ARRAY_ITEMS:
+        return {"shape": list(a.shape), "dtype": str(a.dtype), "omitted": True}
+    if a.dtype.kind == "f":
+        if a.ndim == 0:
+            return finite(float(a))
+        return [jsonable_array(row) for row in a]
+    return a.tolist()
+
+
+def parse_z(values: list[str]) -> np.ndarray:
+    """``["0.1,0.2", "0.3"]`` -> [0.1, 0.2, 0.3]; raises a 422 with the reason."""
+    out: list[float] = []
+    for v in values:
+        for part in v.split(","):
+            p = part.strip()
+            try:
+                x = float(p)
+            except ValueError:
+                invalid(("query", "z"), f"{p!r} is not a number", v)
+            if not math.isfinite(x):
+                invalid(("query", "z"), f"{p!r} is not finite", v)
+            out.append(x)
+    if not out:
+        invalid(("query", "z"), "no coordinates given", values)
+    if len(out) > m.MAX_DIM:
+        invalid(("query", "z"), f"{len(out)} coordinates, at most {m.MAX_DIM}", values)
+    return np.asarray(out)
+
+
+def create_app(state: ApiState) -> FastAPI:
+    """The app over ``state``; see the module docstring."""
+    app = FastAPI(title="URSA skills API", version="1.0.0", description=DESCRIPTION)
+    live = state.live
+    e503: dict[int | str, dict[str, Any]] = {503: {"model": m.Error,
+                                                   "description": "A peer is missing"}}
+
+    class SampleRequest(BaseModel):
+        model_config = ConfigDict(extra="forbid")
+        n: int = Field(1, ge=1, le=state.max_sample,
+                       description="How many skills to draw from the repertoire's KDE")
+        seed: m.Seed | None = Field(None, description="Seed of the draw (fresh if absent)")
+
+    class EvaluateRequest(BaseModel):
+        model_config = ConfigDict(extra="forbid")
+        skill: Annotated[int, Field(ge=0, le=m.MAX_SEED)] | m.SkillVector = Field(
+            description="A skill id from the repertoire, or coordinates in skill space (D,)")
+        steps: int = Field(250, ge=1, le=state.max_eval_steps,
+                           description="Control steps to run the skill for")
+        damage: str | None = Field(None, max_length=64,
+                                   description="Damage scenario (A1); null/'none': intact")
+        seed: m.Seed | None = Field(None, description="Seed of the environment")
+
+    def need_snapshot() -> SnapshotView:
+        snap = live.latest_snapshot()
+        if snap is None:
+            unavailable("no repertoire snapshot yet (is the repertoire running?)")
+        return snap
+
+    @app.middleware("http")
+    async def count_requests(request: Request, call_next: Any) -> Any:
+        response = await call_next(request)
+        state.count(response.status_code)
+        return response
+
+    @app.exception_handler(Exception)
+    async def internal_error(request: Request, exc: Exception) -> JSONResponse:
+        # only a bug gets here; keep the reason for the log, not the client
+        return JSONResponse({"detail": f"internal error: {type(exc).__name__}"}, status_code=500)
+
+    @app.get("/skills", response_model=m.SkillPage, responses=e503, tags=["skills"])
+    def list_skills(
+        offset: Annotated[int, Query(ge=0, le=10**9, description="Skills to skip (by id)")] = 0,
+        limit: Annotated[int, Query(ge=1, le=1000, description="Page size")] = 100,
+    ) -> m.SkillPage:
+        """The skills of the latest repertoire snapshot, ordered by id."""
+        snap = need_snapshot()
+        rows = snap.page(offset, limit)
+        return m.SkillPage(items=[skill_out(snap, int(r)) for r in rows], total=snap.size,
+                           offset=offset, limit=limit, dim=snap.dim,
+                           snapshot_version=snap.version, delta=finite(snap.delta),
+                           entropy_bound=finite(snap.entropy_bound))
+
+    @app.get("/skills/nearest", response_model=m.NearestReply, responses=e503, tags=["skills"])
+    def nearest(
+        z: Annotated[list[str], Query(description="Coordinates: comma-separated floats "
+                                                  "(z=0.1,0.2) or repeated (z=0.1&z=0.2)")],
+        k: Annotated[int, Query(ge=1, le=100, description="How many neighbours")] = 1,
+    ) -> m.NearestReply:
+        """The k skills nearest z in the repertoire's Mahalanobis metric (Σ of the snapshot)."""
+        q = parse_z(z)
+        snap = need_snapshot()
+        if len(q) != snap.dim:
+            invalid(("query", "z"), f"z has {len(q)} coordinates, the skills have {snap.dim}",
+                    z)
+        rows, dist = snap.nearest(q, k)
+        return m.NearestReply(
+            query=q.tolist(), k=k, delta=finite(snap.delta), snapshot_version=snap.version,
+            results=[m.Neighbour(id=int(snap.ids[r]), z=snap.skills[r].tolist(),
+                                 distance=float(d)) for r, d in zip(rows, dist, strict=True)])
+
+    @app.get("/skills/{skill_id}", response_model=m.Skill, tags=["skills"],
+             responses={404: {"model": m.Error, "description": "No such skill"}, **e503})
+    def get_skill(skill_id: Annotated[int, Path(ge=0, le=m.MAX_SEED)]) -> m.Skill:
+        """One skill of the latest snapshot by id."""
+        snap = need_snapshot()
+        row = snap.index_of(skill_id)
+        if row is None:
+            raise HTTPException(404, detail=f"skill {skill_id} is not in the repertoire "
+                                            f"(snapshot version {snap.version})")
+        return skill_out(snap, row)
+
+    @app.post("/skills/sample", response_model=m.SampleReply, responses=e503, tags=["skills"])
+    def sample(body: SampleRequest) -> m.SampleReply:
+        """n skills from the repertoire's KDE (forwarded to the repertoire; drawn here from the
+        latest snapshot with ``ursa.kde.kde_sample`` if the repertoire does not answer)."""
+        snap = live.latest_snapshot()
+        reply = None
+        if state.backend is not None and live.alive_ids("repertoire"):
+            reply = state.backend.sample(body.n, body.seed, state.sample_timeout_s)
+        if reply is not None and not reply.error:
+            try:
+                skills = np.asarray(codec.from_array(reply.skills), np.float64)
+            except codec.BadMessage:
+                skills = np.zeros((0, 0))
+            if skills.ndim == 2 and len(skills) == body.n and np.all(np.isfinite(skills)):
+                return m.SampleReply(skills=skills.tolist(), source="repertoire",
+                                     delta=finite(reply.delta),
+                                     snapshot_version=int(reply.snapshot_version))
+        if snap is None or snap.size == 0:
+            why = reply.error if reply is not None and reply.error else (
+                "no repertoire snapshot yet" if snap is None else "the repertoire is empty")
+            unavailable(f"cannot sample: {why}")
+        rng = np.random.default_rng(body.seed)
+        skills = kde_sample(snap.skills, snap.cov, body.n, rng)
+        return m.SampleReply(skills=skills.tolist(), source="snapshot",
+                             delta=finite(snap.delta), snapshot_version=snap.version)
+
+    @app.get("/collectors", response_model=list[m.Collector], tags=["collectors"])
+    def collectors() -> list[m.Collector]:
+        """The live collectors with their latest stats."""
+        now = time.time()
+        out = []
+        for c in live.collectors():
+            s = c.stats
+            steps, rescues, pv = c.get("steps"), c.get("rescues"), c.get("policy_version")
+            out.append(m.Collector(
+                id=c.id, alive=c.alive, steps=None if steps is None else int(steps),
+                steps_per_s=c.get("steps_per_s"), violation_rate=c.get("violation_rate"),
+                rescues=None if rescues is None else int(rescues),
+                return_mean=c.get("return_mean"), damage=c.damage,
+                env=s.labels.get("env") if s else None,
+                skill=None if c.skill is None else c.skill.tolist(),
+                skill_source=s.labels.get("skill_source") if s else None,
+                policy_version=None if pv is None else int(pv),
+                stats_age_s=None if s is None else max(0.0, now - s.received)))
+        return out
+
+    def service_stats(e: StatsEntry, alive: bool, now: float) -> m.ServiceStats:
+        return m.ServiceStats(
+            service=e.service, id=e.sid, alive=alive, stamp=e.stamp,
+            age_s=max(0.0, now - e.received),
+            scalars={k: finite(v) for k, v in sorted(e.scalars.items())},
+            labels=dict(e.labels),
+            arrays={k: jsonable_array(a) for k, a in sorted(e.arrays.items())})
+
+    @app.get("/stats", response_model=m.StatsReply, tags=["run"])
+    def stats() -> m.StatsReply:
+        """The latest stats of every service seen (gone ones too, marked ``alive: false``)."""
+        now = time.time()
+        alive: dict[str, dict[str, float]] = {}
+        out = []
+        for (svc, sid), e in sorted(live.all_stats().items()):
+            if svc not in alive:
+                alive[svc] = live.alive_ids(svc)
+            out.append(service_stats(e, sid in alive[svc], now))
+        return m.StatsReply(services=out)
+
+    @app.get("/health", response_model=m.Health, tags=["run"])
+    def health() -> m.Health:
+        """Always 200: whether the router is reachable, which peers are alive, the snapshot."""
+        bus = (state.backend.bus_status() if state.backend is not None
+               else {"connected": False, "router": None, "detail": "no bus (in-process app)"})
+        peers: dict[str, Any] = {svc: sorted(live.alive_ids(svc)) for svc in SERVICES}
+        peers["collectors"] = sorted(live.alive_ids("collector"))
+        snap = live.latest_snapshot()
+        problems = []
+        if not bus.get("connected"):
+            problems.append("zenoh router not reachable")
+        for svc in ("repertoire", "learner", "evaluator"):
+            if not peers[svc]:
+                problems.append(f"no {svc} alive")
+        if not peers["collectors"]:
+            problems.append("no collector alive")
+        if snap is None:
+            problems.append("no repertoire snapshot yet")
+        snap_info = None if snap is None else {
+            "version": snap.version, "size": snap.size, "dim": snap.dim,
+            "delta": finite(snap.delta), "age_s": max(0.0, time.time() - snap.received)}
+        return m.Health(status="degraded" if problems else "ok", problems=problems, bus=bus,
+                        peers=peers, snapshot=snap_info, uptime_s=time.time() - state.started)
+
+    @app.post("/evaluate", response_model=m.EvaluateReply, tags=["evaluate"],
+              responses={404: {"model": m.Error, "description": "No such skill"}, **e503})
+    def evaluate(body: EvaluateRequest) -> m.EvaluateReply:
+        """Run a skill on the evaluation collector for ``steps`` control steps (one evaluation
+        at a time; later requests wait) and return what it achieved."""
+        snap = live.latest_snapshot()
+        skill_id: int | None = None
+        if isinstance(body.skill, int):
+            if snap is None:
+                unavailable("no repertoire snapshot yet: cannot look up a skill id")
+            row = snap.index_of(body.skill)
+            if row is None:
+                raise HTTPException(404, detail=f"skill {body.skill} is not in the repertoire")
+            skill_id, target = body.skill, np.asarray(snap.skills[row])
+        else:
+            target = np.asarray(body.skill, np.float64)
+            dim = snap.dim if snap is not None else state.skill_dim
+            if dim is not None and len(target) != dim:
+                invalid(("body", "skill"), f"skill has {len(target)} coordinates, the skills "
+                                           f"have {dim}", body.skill)
+        damage = body.damage or ""
+        if damage not in state.damages:
+            invalid(("body", "damage"), f"unknown damage {damage!r}; one of: "
+                                        f"{', '.join(d for d in state.damages if d)}", damage)
+        if state.backend is None:
+            unavailable("no bus: evaluations need the evaluator service")
+        if not live.alive_ids("evaluator"):
+            unavailable("no evaluator alive (start python -m services.evaluator)")
+        req = pb.EvaluateRequest(header=state.backend.header(), steps=body.steps,
+                                 damage=damage, skill=codec.to_array(target.astype(np.float32)))
+        if body.seed is not None:
+            req.has_seed, req.seed = True, body.seed
+        timeout = state.eval_timeout_s + state.eval_timeout_per_step_s * body.steps
+        t0 = time.perf_counter()
+        if not state.eval_lock.acquire(timeout=state.eval_wait_s):
+            unavailable("the evaluator is busy (evaluations run one at a time)")
+        try:
+            reply = state.backend.evaluate(req, timeout)
+        finally:
+            state.eval_lock.release()
+        if reply is None:
+            unavailable(f"the evaluator did not answer within {timeout:.0f} s")
+        if reply.error.startswith("invalid:"):
+            invalid(("body",), reply.error.removeprefix("invalid:").strip())
+        if reply.error:
+            unavailable(reply.error.removeprefix("unavailable:").strip())
+        try:
+            achieved = np.asarray(codec.from_array(reply.achieved), np.float64)
+        except codec.BadMessage as e:
+            unavailable(f"malformed evaluator reply: {e}")
+        nums = [reply.distance, reply.delta, reply.ret, *achieved.tolist()]
+        if not all(math.isfinite(v) for v in nums):
+            unavailable("the evaluator replied with non-finite numbers")
+        steps = max(int(reply.steps), 1)
+        return m.EvaluateReply(
+            skill_id=skill_id, target=target.tolist(), achieved=achieved.tolist(),
+            distance=reply.distance, delta=reply.delta,
+            within_delta=bool(reply.distance <= reply.delta), ret=reply.ret,
+            violations=int(reply.violations), violation_rate=reply.violations / steps,
+            steps=int(reply.steps), damage=damage or "none",
+            policy_version=int(reply.policy_version), elapsed_s=time.perf_counter() - t0)
+
+    return app

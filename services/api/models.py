@@ -1,0 +1,125 @@
+"""Request and response bodies of the HTTP API (what ``/docs`` shows)."""
+
+from __future__ import annotations
+
+from typing import Annotated, Any, Literal
+
+from pydantic import BaseModel, ConfigDict, Field
+
+MAX_DIM = 64
+"""Longest skill vector the API accepts (skills have D = 2..4 in practice)."""
+MAX_SEED = 2**63 - 1
+
+Coordinate = Annotated[float, Field(allow_inf_nan=False)]
+SkillVector = Annotated[list[Coordinate], Field(min_length=1, max_length=MAX_DIM)]
+Seed = Annotated[int, Field(ge=0, le=MAX_SEED)]
+
+
+class Error(BaseModel):
+    """Why a request failed (404: missing resource; 503: a missing peer)."""
+
+    detail: str
+
+
+class Skill(BaseModel):
+    id: int = Field(description="Stable skill id (assigned when the skill entered)")
+    z: list[float] = Field(description="Coordinates in skill space (D,)")
+    age: int = Field(description="Commit index at which the skill entered the repertoire")
+    nn_distance: float | None = Field(
+        description="Mahalanobis distance to its nearest neighbour (null for a lone skill)")
+
+
+class SkillPage(BaseModel):
+    items: list[Skill]
+    total: int = Field(description="Skills in the repertoire")
+    offset: int
+    limit: int
+    dim: int
+    snapshot_version: int
+    delta: float | None
+    entropy_bound: float | None
+
+
+class SampleRequest(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+    n: int = Field(1, ge=1, description="How many skills to draw from the repertoire's KDE")
+    seed: Seed | None = Field(None, description="Seed of the draw (fresh randomness if absent)")
+
+
+class SampleReply(BaseModel):
+    skills: list[list[float]] = Field(description="(n, D) skills drawn from the KDE")
+    source: Literal["repertoire", "snapshot"] = Field(
+        description="repertoire: drawn by the repertoire service; snapshot: drawn here with "
+                    "ursa.kde.kde_sample from the latest snapshot (repertoire not answering)")
+    delta: float | None
+    snapshot_version: int
+
+
+class Neighbour(BaseModel):
+    id: int
+    z: list[float]
+    distance: float = Field(description="Mahalanobis distance (the repertoire's Σ)")
+
+
+class NearestReply(BaseModel):
+    query: list[float]
+    k: int
+    results: list[Neighbour]
+    delta: float | None
+    snapshot_version: int
+
+
+class Collector(BaseModel):
+    id: str
+    alive: bool
+    steps: int | None
+    steps_per_s: float | None
+    violation_rate: float | None
+    rescues: int | None
+    return_mean: float | None
+    damage: str | None
+    env: str | None
+    skill: list[float] | None = Field(description="The skill it is executing")
+    skill_source: str | None
+    policy_version: int | None
+    stats_age_s: float | None = Field(description="Seconds since its latest stats arrived")
+
+
+class ServiceStats(BaseModel):
+    service: str
+    id: str
+    alive: bool
+    stamp: float
+    age_s: float
+    scalars: dict[str, float | None]
+    labels: dict[str, str]
+    arrays: dict[str, Any]
+
+
+class StatsReply(BaseModel):
+    services: list[ServiceStats]
+
+
+class Health(BaseModel):
+    status: Literal["ok", "degraded"]
+    problems: list[str]
+    bus: dict[str, Any]
+    peers: dict[str, Any]
+    snapshot: dict[str, Any] | None
+    uptime_s: float
+
+
+class EvaluateReply(BaseModel):
+    skill_id: int | None = Field(description="Id of the target skill (if given by id)")
+    target: list[float]
+    achieved: list[float] = Field(description="Mean φ over the run, in skill space")
+    distance: float = Field(description="Mahalanobis distance achieved-target (Σ of δ)")
+    delta: float
+    within_delta: bool
+    ret: float = Field(description="Undiscounted return")
+    violations: int = Field(description="Unsafe steps")
+    violation_rate: float
+    steps: int
+    damage: str
+    policy_version: int = Field(description="Weights used (0: none yet, random actions)")
+    elapsed_s: float

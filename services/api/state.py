@@ -1,0 +1,74 @@
+"""What the HTTP routes read and call: the live view of the run and a backend for queries.
+
+The routes never touch zenoh: :class:`ApiState` holds a ``LiveState`` (fed by bus callbacks in the
+service, or directly by tests) and a :class:`Backend` that forwards sample and evaluate requests
+(``services.api.bus.BusBackend`` over Zenoh queries; a fake in tests).
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from dataclasses import dataclass, field
+from typing import Any, Protocol
+
+from proto import ursa_pb2 as pb
+from services.dashboard.live import LiveState
+
+
+class Backend(Protocol):
+    """Requests the API forwards to other services."""
+
+    def sample(self, n: int, seed: int | None, timeout_s: float) -> pb.SkillReply | None:
+        """The repertoire's reply to a ``SkillRequest``, or None if nobody answered."""
+        ...
+
+    def evaluate(self, req: pb.EvaluateRequest, timeout_s: float) -> pb.EvaluateReply | None:
+        """The evaluator's reply, or None if nobody answered in time."""
+        ...
+
+    def bus_status(self) -> dict[str, Any]:
+        """``{"connected": bool, "router": str, ...}``: whether the router is reachable."""
+        ...
+
+    def header(self) -> pb.Header:
+        """A header for outgoing requests."""
+        ...
+
+
+@dataclass
+class ApiState:
+    """Everything the app needs; build it with a ``LiveState`` and (optionally) a backend."""
+
+    live: LiveState
+    backend: Backend | None = None
+    env: str = "point"
+    """Environment of the run (which damages exist)."""
+    skill_dim: int | None = None
+    """Skill dimension from the config (checked before any snapshot exists)."""
+    max_eval_steps: int = 5000
+    """Largest ``steps`` of ``POST /evaluate``."""
+    max_sample: int = 4096
+    """Largest ``n`` of ``POST /skills/sample``."""
+    sample_timeout_s: float = 2.0
+    eval_timeout_s: float = 30.0
+    """Fixed part of an evaluation's timeout."""
+    eval_timeout_per_step_s: float = 0.05
+    """Per-step part of an evaluation's timeout (the A1 runs far faster than 20 steps/s)."""
+    eval_wait_s: float = 120.0
+    """How long a request waits for the evaluation before it (they run one at a time)."""
+    damages: tuple[str, ...] = ("", "none")
+    started: float = field(default_factory=time.time)
+    eval_lock: threading.Lock = field(default_factory=threading.Lock)
+    requests: dict[str, int] = field(default_factory=dict)
+    _count_lock: threading.Lock = field(default_factory=threading.Lock)
+
+    def count(self, status: int) -> None:
+        key = f"http_{status // 100}xx"
+        with self._count_lock:
+            self.requests[key] = self.requests.get(key, 0) + 1
+            self.requests["http_total"] = self.requests.get("http_total", 0) + 1
+
+    def counters(self) -> dict[str, int]:
+        with self._count_lock:
+            return dict(self.requests)

@@ -1,0 +1,1 @@
+"""Evaluation collector: runs one skill on request and reports what it achieved (no replay)."""

@@ -1,0 +1,81 @@
+"""One evaluation: run a fixed skill for ``steps`` control steps and measure what it achieved.
+
+Pure (no bus): the evaluator service and the tests call :func:`run_skill`. The achieved skill is
+the mean of φ over the run (φ = the policy's encoder applied to ``info["features"][key]`` with a
+learned φ, the provided feature itself otherwise), its distance to the target is Mahalanobis in
+the repertoire's metric (Σ of the latest snapshot, the metric of δ), exactly as
+``ursa.serial.evaluate_skills`` measures it.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from services.evaluator.acting import Acting
+from ursa import kde
+from ursa.envs.base import ResetFreeEnv
+
+NO_DAMAGE = ("", "none")
+
+
+def allowed_damages(env: str) -> tuple[str, ...]:
+    """Damage names an evaluation may ask for on ``env`` ("" and "none": intact)."""
+    if env == "a1":
+        from ursa.envs.a1 import DAMAGE_SCENARIOS
+
+        return (*NO_DAMAGE, *sorted(DAMAGE_SCENARIOS))
+    return NO_DAMAGE
+
+
+@dataclass(frozen=True)
+class RunResult:
+    """What one skill achieved."""
+
+    achieved: np.ndarray
+    """Mean φ over the run (D,)."""
+    distance: float
+    """Mahalanobis distance of ``achieved`` to the target, Σ = the metric covariance."""
+    ret: float
+    """Undiscounted return."""
+    violations: int
+    """Unsafe steps."""
+    steps: int
+    elapsed_s: float
+
+
+def mahalanobis(a: np.ndarray, b: np.ndarray, cov: np.ndarray) -> float:
+    """‖A (a − b)‖ with A Σ Aᵀ = I (Σ regularized if singular)."""
+    w = kde.whitening_matrix(kde.regularize_cov(np.asarray(cov, np.float64)))
+    diff = (np.asarray(a, np.float64) - np.asarray(b, np.float64)) @ w.T
+    return float(np.sqrt(diff @ diff))
+
+
+def run_skill(
+    env: ResetFreeEnv,
+    acting: Acting,
+    skill: np.ndarray,
+    steps: int,
+    feature_key: str,
+    metric_cov: np.ndarray,
+) -> RunResult:
+    """Act ``steps`` times with ``skill`` (D,) fixed from the env's current state."""
+    t0 = time.perf_counter()
+    skill = np.asarray(skill, np.float64)
+    obs, _ = env.reset()
+    acting.begin()
+    inputs = []
+    ret = 0.0
+    violations = 0
+    for _ in range(steps):
+        action = acting.act(obs, skill)
+        obs, reward, _, _, info = env.step(action)
+        inputs.append(np.asarray(info["features"][feature_key], np.float64))
+        ret += float(reward)
+        violations += 0 if info["safe"] else 1
+    phi = np.asarray(acting.features(np.stack(inputs)), np.float64)
+    achieved = phi.mean(axis=0)
+    return RunResult(achieved, mahalanobis(achieved, skill, metric_cov), ret, violations, steps,
+                     time.perf_counter() - t0)
