@@ -2,13 +2,13 @@
 
 Pure functions on arrays (paper §4.2 and Appendix A). ``N`` is the number of stored points, ``D``
 the skill dimension. The kernel covariance is ``Σ = cov(points) · f²`` with Scott's factor
-``f = n^(−1/(D+4))``; with ``n = N`` this is exactly ``scipy.stats.gaussian_kde(points.T)
-.covariance``.
+``f = n^(−1/(D+4))``; with ``n = N`` this is ``scipy.stats.gaussian_kde(points.T).covariance``
+(equal to rounding: scipy goes through a weighted ``np.cov``).
 
 Degenerate inputs never raise: fewer than two points give a zero data covariance, and any
 covariance that is not safely positive definite (``N < D + 1``, repeated or collinear points)
-gets a ridge (see :func:`regularize_cov`). A non-degenerate covariance is returned untouched, so
-results agree with scipy bit for bit where scipy works at all.
+gets a ridge (see :func:`regularize_cov`). A non-degenerate covariance is only symmetrized, so
+results agree with scipy wherever scipy works at all.
 """
 
 from __future__ import annotations
@@ -39,7 +39,7 @@ def scott_factor(n: int, d: int) -> float:
 def regularize_cov(cov: np.ndarray, ridge: float = RIDGE) -> np.ndarray:
     """A copy of ``cov`` (D, D) that is symmetric positive definite.
 
-    Returned unchanged (as a copy) when its smallest eigenvalue exceeds ``ridge · s`` with
+    Returned symmetrized (``(Σ + Σᵀ)/2``) when its smallest eigenvalue exceeds ``ridge · s`` with
     ``s = trace/D`` (or 1 where the trace is 0); otherwise ``(ridge · s − min(λ_min, 0)) · I`` is
     added. A non-finite covariance (overflow) is replaced by the identity.
     """
@@ -63,8 +63,9 @@ def kde_covariance(points: np.ndarray, n: int | None = None, ridge: float = RIDG
     """Kernel covariance Σ (D, D) of a Gaussian KDE on ``points`` (N, D).
 
     ``Σ = np.cov(points.T) · scott_factor(n, D)²`` with ``n = N`` by default (scipy's
-    ``gaussian_kde.covariance``); pass ``n = N_R`` for the paper's ``N_R^(−2/(D+4))`` scaling.
-    N < 2 gives a zero data covariance; the result goes through :func:`regularize_cov`.
+    ``gaussian_kde.covariance``, to rounding); pass ``n = N_R`` for the paper's
+    ``N_R^(−2/(D+4))`` scaling. N < 2 gives a zero data covariance; the result goes through
+    :func:`regularize_cov`.
     """
     points = np.asarray(points, dtype=np.float64)
     npts, d = points.shape
@@ -90,15 +91,22 @@ def _log_norm_const(cov: np.ndarray) -> float:
     return float(np.log(np.diag(c)).sum() + 0.5 * cov.shape[0] * math.log(2.0 * math.pi))
 
 
-def kde_sample(points: np.ndarray, cov: np.ndarray, n: int, rng: np.random.Generator) -> np.ndarray:
+def kde_sample(
+    points: np.ndarray,
+    cov: np.ndarray,
+    n: int,
+    rng: np.random.Generator,
+    chol: np.ndarray | None = None,
+) -> np.ndarray:
     """n samples (n, D) of ``q = (1/N) Σ_i N(z_i, Σ)``: a stored point drawn uniformly + N(0, Σ).
 
-    points: (N, D); cov: Σ (D, D), regularized if needed. With N = 0 the kernel sits at the
-    origin (samples from N(0, Σ)).
+    points: (N, D); cov: Σ (D, D), regularized if needed; chol: its lower Cholesky factor (D, D)
+    when the caller already has it. Draws ``rng.integers`` for the points, then
+    ``rng.standard_normal((n, D))``. With N = 0 the kernel sits at the origin (N(0, Σ) samples).
     """
     points = np.asarray(points, dtype=np.float64)
     d = points.shape[1]
-    c = cholesky(regularize_cov(cov), lower=True)
+    c = cholesky(regularize_cov(cov), lower=True) if chol is None else chol
     centres = points[rng.integers(0, len(points), size=n)] if len(points) else np.zeros((n, d))
     out: np.ndarray = centres + rng.standard_normal((n, d)) @ c.T
     return out

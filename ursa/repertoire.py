@@ -101,16 +101,17 @@ def _sqd(wt: np.ndarray, i: int, j: int) -> float:
 
 
 @njit(cache=True)
-def _rescan(wt: np.ndarray, n: int, i: int) -> tuple[float, int]:
-    best = np.inf
-    arg = -1
-    for j in range(n):
-        if j != i:
-            dj = _sqd(wt, i, j)
-            if dj < best:
-                best = dj
-                arg = j
-    return best, arg
+def _rescan_fast(wt: np.ndarray, n: int, i: int, buf: np.ndarray) -> tuple[float, int]:
+    """Same result as _rescan (nearest other skill, lowest index among ties), vectorized."""
+    _dist_pass(wt, wt[:, i].copy(), n, buf, -1.0)
+    buf[i] = np.inf
+    best = _min8(buf, n)
+    if best == np.inf:
+        return best, -1
+    j = 0
+    while buf[j] != best:
+        j += 1
+    return best, j
 
 
 @njit(cache=True)
@@ -269,6 +270,7 @@ def _commit_full(
     dz: np.ndarray,
     wz: np.ndarray,
     changed: np.ndarray,
+    buf: np.ndarray,
 ) -> int:
     """Commit the rows of z (M, D) one by one into the full archive; returns how many stayed.
 
@@ -305,7 +307,7 @@ def _commit_full(
         for q in range(nch):
             i = changed[q]
             if nn_idx[i] == s:
-                nn[i], nn_idx[i] = _rescan(wt, n, i)
+                nn[i], nn_idx[i] = _rescan_fast(wt, n, i, buf)
             else:
                 nn[i] = dz[i]
                 nn_idx[i] = s
@@ -348,10 +350,12 @@ class Repertoire:
         self._n = 0
         self._cov = np.eye(c.dim)
         self._a = np.eye(c.dim)
+        self._chol = np.eye(c.dim)
         self._stale = True
         """Σ, whitened points and NN lag behind the archive (only ever while it fills)."""
         self._order: np.ndarray | None = None
         self._dz = np.zeros(c.size)
+        self._buf = np.zeros(c.size)
         self._wz = np.zeros(c.dim)
         self._changed = np.zeros(c.size, dtype=np.int64)
         self.next_id = 0
@@ -458,6 +462,7 @@ class Repertoire:
                     self._dz,
                     self._wz,
                     self._changed,
+                    self._buf,
                 )
             )
             self.next_id += acc
@@ -485,9 +490,14 @@ class Repertoire:
             self._cov = kde.kde_covariance(
                 self._p[order], n=self.config.size, ridge=self.config.ridge
             )
-        self._a = np.ascontiguousarray(kde.whitening_matrix(self._cov))
+        self._set_cov(self._cov)
         self._rebuild_nn()
         self.since_refresh = 0
+
+    def _set_cov(self, cov: np.ndarray) -> None:
+        self._cov = cov
+        self._chol = np.linalg.cholesky(cov)
+        self._a = np.ascontiguousarray(kde.whitening_matrix(cov))
 
     def _rebuild_nn(self) -> None:
         n = self._n
@@ -581,8 +591,16 @@ class Repertoire:
         return kde.entropy_mc(self.skills, self.cov)
 
     def sample(self, n: int, rng: np.random.Generator) -> np.ndarray:
-        """n skills (n, D) from q = KDE(R) with the current Σ; N(0, I) while empty."""
-        return kde.kde_sample(self.skills, self.cov, n, rng)
+        """n skills (n, D) from q = KDE(R) with the current Σ; N(0, I) while empty.
+
+        Same draws as ``kde.kde_sample(self.skills, self.cov, n, rng)``, without copying the
+        archive or factorizing Σ again."""
+        self._fresh()
+        if self._n == 0:
+            return kde.kde_sample(np.zeros((0, self.config.dim)), self._cov, n, rng, self._chol)
+        centres = self._p[self._id_order()[rng.integers(0, self._n, size=n)]]
+        out: np.ndarray = centres + rng.standard_normal((n, self.config.dim)) @ self._chol.T
+        return out
 
     def nearest(self, z: np.ndarray, k: int = 1) -> np.ndarray:
         """Ids (≤ k,) of the stored skills nearest to z (D,) in d_Σ, closest first (ties: lower
@@ -695,8 +713,9 @@ class Repertoire:
         if n < cfg.size:
             rep._stale = True  # filling: Σ follows the archive
         else:
-            rep._cov = np.asarray(state["cov"], dtype=np.float64).reshape(cfg.dim, cfg.dim).copy()
-            rep._a = np.ascontiguousarray(kde.whitening_matrix(rep._cov))
+            rep._set_cov(
+                np.asarray(state["cov"], dtype=np.float64).reshape(cfg.dim, cfg.dim).copy()
+            )
             rep._rebuild_nn()
         return rep
 
