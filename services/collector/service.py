@@ -105,6 +105,8 @@ class Collector:
         self.seq = 0
         self.feat_seq = 0
         self.step_count = 0
+        self.step_offset = 0
+        """Step indices skipped at rescues (each starts a new replay segment)."""
         self.ret_window: deque[float] = deque(maxlen=1000)
         self.unsafe_window: deque[bool] = deque(maxlen=self.cfg.collector.violation_window)
         self.total_unsafe = 0
@@ -222,8 +224,14 @@ class Collector:
             next_obs, reward, _, _, info = self.env.step(action)
             feat = np.asarray(info["features"][self.feature_key], np.float32)
             safe = bool(info["safe"])
+            if info.get("rescued") and buf["obs"]:
+                # a rescue teleports the robot: end the chunk and skip a step index so that the
+                # learner's replay starts a new segment at the righted robot
+                self._publish_chunk(buf, chunk_first_step)
+                buf = {k: [] for k in buf}
+                self.step_offset += 1
             if not buf["obs"]:
-                chunk_first_step = self.step_count
+                chunk_first_step = self.step_count + self.step_offset
             # records follow the world model's convention: the observation after the step with
             # the action that produced it, its reward, cost and safety
             buf["obs"].append(next_obs)

@@ -30,7 +30,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from operator import mul
+from operator import mul, sub
 
 import numpy as np
 
@@ -92,10 +92,12 @@ def work_penalty(tau: np.ndarray, qd: np.ndarray, dt: float) -> float:
     return float(np.abs(np.asarray(tau) * np.asarray(qd)).sum() * dt)
 
 
-def smooth_penalty(action: np.ndarray, prev_action: np.ndarray) -> float:
+def smooth_penalty(
+    action: Sequence[float] | np.ndarray, prev_action: Sequence[float] | np.ndarray
+) -> float:
     """r_smooth = sum of squared action changes; action, prev_action (A,)."""
-    d = np.asarray(action) - np.asarray(prev_action)
-    return float(np.dot(d, d))
+    d = list(map(sub, action, prev_action))
+    return float(sum(map(mul, d, d)))
 
 
 def posture_deviation(
