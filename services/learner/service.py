@@ -21,6 +21,7 @@ import threading
 import time
 from collections import deque
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 import torch
@@ -345,7 +346,8 @@ class LearnerService:
 
     def close(self) -> None:
         self.presence.undeclare()
-        for h in (*self.subs, *self.queryables):
+        handles: list[Any] = [*self.subs, *self.queryables]
+        for h in handles:
             try:
                 h.undeclare()
             except Exception:
