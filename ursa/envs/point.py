@@ -41,9 +41,9 @@ class PointEnv:
 
     obs_dim = 6
     act_dim = 2
+    feature_dims: dict[str, int] = {"position": 2}  # noqa: RUF012 - read-only, per class
 
     def __init__(self, config: PointConfig | None = None, seed: int = 0) -> None:
-        self.feature_dims = {"position": 2}
         self.config = config or PointConfig()
         self._rng = np.random.default_rng(seed)
         self._pos = self._rng.uniform(-0.9, 0.9, size=2)
