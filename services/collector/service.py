@@ -258,7 +258,7 @@ class Collector:
                     sps = (self.step_count - steps_at_last_stats) / dt
                     steps_at_last_stats, time_at_last_stats = self.step_count, now
                 self._publish_stats(sps)
-                last_stats = now
+                last_stats = max(last_stats + stats_period, now - stats_period)
             if self.args.realtime_factor > 0:
                 target = t_start + self.step_count * 0.05 / self.args.realtime_factor
                 delay = target - time.monotonic()
