@@ -16,9 +16,11 @@ from typing import Annotated, Any, NoReturn
 
 import numpy as np
 from fastapi import FastAPI, HTTPException, Path, Query, Request
+from fastapi.exception_handlers import http_exception_handler
 from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
 from pydantic import BaseModel, ConfigDict, Field
+from starlette.exceptions import HTTPException as StarletteHTTPException
 
 from proto import codec
 from proto import ursa_pb2 as pb
@@ -67,6 +69,11 @@ def jsonable_array(a: np.ndarray) -> Any:
     return a.tolist()
 
 
+_NUM = r"\s*[-+]?(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?\s*"
+Z_PATTERN = f"^{_NUM}(,{_NUM})*$"
+"""One ``z`` parameter: comma-separated decimal numbers."""
+
+
 def parse_z(values: list[str]) -> np.ndarray:
     """``["0.1,0.2", "0.3"]`` -> [0.1, 0.2, 0.3]; raises a 422 with the reason."""
     out: list[float] = []
@@ -95,13 +102,13 @@ def create_app(state: ApiState) -> FastAPI:
                                                    "description": "A peer is missing"}}
 
     class SampleRequest(BaseModel):
-        model_config = ConfigDict(extra="forbid")
+        model_config = ConfigDict(extra="forbid", strict=True)
         n: int = Field(1, ge=1, le=state.max_sample,
                        description="How many skills to draw from the repertoire's KDE")
         seed: m.Seed | None = Field(None, description="Seed of the draw (fresh if absent)")
 
     class EvaluateRequest(BaseModel):
-        model_config = ConfigDict(extra="forbid")
+        model_config = ConfigDict(extra="forbid", strict=True)
         skill: Annotated[int, Field(ge=0, le=m.MAX_SEED)] | m.SkillVector = Field(
             description="A skill id from the repertoire, or coordinates in skill space (D,)")
         steps: int = Field(250, ge=1, le=state.max_eval_steps,
@@ -121,6 +128,15 @@ def create_app(state: ApiState) -> FastAPI:
         response = await call_next(request)
         state.count(response.status_code)
         return response
+
+    @app.exception_handler(StarletteHTTPException)
+    async def http_error(request: Request, exc: StarletteHTTPException) -> Any:
+        # FastAPI answers 400 to a body it cannot parse (e.g. not UTF-8): a client's mistake
+        # like any other invalid input, so 422 with the reason
+        if exc.status_code == 400:
+            return JSONResponse({"detail": [{"loc": ["body"], "msg": str(exc.detail),
+                                             "type": "value_error"}]}, status_code=422)
+        return await http_exception_handler(request, exc)
 
     @app.exception_handler(Exception)
     async def internal_error(request: Request, exc: Exception) -> JSONResponse:
@@ -142,8 +158,9 @@ def create_app(state: ApiState) -> FastAPI:
 
     @app.get("/skills/nearest", response_model=m.NearestReply, responses=e503, tags=["skills"])
     def nearest(
-        z: Annotated[list[str], Query(description="Coordinates: comma-separated floats "
-                                                  "(z=0.1,0.2) or repeated (z=0.1&z=0.2)")],
+        z: Annotated[list[Annotated[str, Field(pattern=Z_PATTERN, max_length=4096)]],
+                     Query(description="Coordinates: comma-separated floats (z=0.1,0.2) or "
+                                       "repeated (z=0.1&z=0.2)")],
         k: Annotated[int, Query(ge=1, le=100, description="How many neighbours")] = 1,
     ) -> m.NearestReply:
         """The k skills nearest z in the repertoire's Mahalanobis metric (Σ of the snapshot)."""
@@ -157,17 +174,6 @@ def create_app(state: ApiState) -> FastAPI:
             query=q.tolist(), k=k, delta=finite(snap.delta), snapshot_version=snap.version,
             results=[m.Neighbour(id=int(snap.ids[r]), z=snap.skills[r].tolist(),
                                  distance=float(d)) for r, d in zip(rows, dist, strict=True)])
-
-    @app.get("/skills/{skill_id}", response_model=m.Skill, tags=["skills"],
-             responses={404: {"model": m.Error, "description": "No such skill"}, **e503})
-    def get_skill(skill_id: Annotated[int, Path(ge=0, le=m.MAX_SEED)]) -> m.Skill:
-        """One skill of the latest snapshot by id."""
-        snap = need_snapshot()
-        row = snap.index_of(skill_id)
-        if row is None:
-            raise HTTPException(404, detail=f"skill {skill_id} is not in the repertoire "
-                                            f"(snapshot version {snap.version})")
-        return skill_out(snap, row)
 
     @app.post("/skills/sample", response_model=m.SampleReply, responses=e503, tags=["skills"])
     def sample(body: SampleRequest) -> m.SampleReply:
@@ -194,6 +200,18 @@ def create_app(state: ApiState) -> FastAPI:
         skills = kde_sample(snap.skills, snap.cov, body.n, rng)
         return m.SampleReply(skills=skills.tolist(), source="snapshot",
                              delta=finite(snap.delta), snapshot_version=snap.version)
+
+    # ":int": only digits match, so "/skills/sample" and "/skills/nearest" never reach it
+    @app.get("/skills/{skill_id:int}", response_model=m.Skill, tags=["skills"],
+             responses={404: {"model": m.Error, "description": "No such skill"}, **e503})
+    def get_skill(skill_id: Annotated[int, Path(ge=0, le=m.MAX_SEED)]) -> m.Skill:
+        """One skill of the latest snapshot by id."""
+        snap = need_snapshot()
+        row = snap.index_of(skill_id)
+        if row is None:
+            raise HTTPException(404, detail=f"skill {skill_id} is not in the repertoire "
+                                            f"(snapshot version {snap.version})")
+        return skill_out(snap, row)
 
     @app.get("/collectors", response_model=list[m.Collector], tags=["collectors"])
     def collectors() -> list[m.Collector]:

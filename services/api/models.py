@@ -41,7 +41,7 @@ class SkillPage(BaseModel):
 
 
 class SampleRequest(BaseModel):
-    model_config = ConfigDict(extra="forbid")
+    model_config = ConfigDict(extra="forbid", strict=True)
     n: int = Field(1, ge=1, description="How many skills to draw from the repertoire's KDE")
     seed: Seed | None = Field(None, description="Seed of the draw (fresh randomness if absent)")
 

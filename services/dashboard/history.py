@@ -26,20 +26,26 @@ class DecimatingSeries:
         self._t = np.empty(self.capacity)
         self._v = np.empty(self.capacity)
         self._n = 0
+        self._start = -math.inf
+        self._count = 0
         self.compactions = 0
 
     def __len__(self) -> int:
         return self._n
 
     def add(self, t: float, v: float) -> None:
-        """Record v at time t; non-finite values, and points closer than ``min_dt`` to the
-        previous one (or earlier than it), replace the previous value instead of adding one."""
+        """Record v at time t. Samples closer than ``min_dt`` to the start of the last point's
+        bucket are averaged into it (time and value); non-finite or out-of-order ones are
+        ignored."""
         if not (math.isfinite(t) and math.isfinite(v)):
             return
         n = self._n
-        if n and t - self._t[n - 1] < self.min_dt:
-            if t >= self._t[n - 1]:
-                self._v[n - 1] = v
+        if n and t < self._start:
+            return
+        if n and t - self._start < self.min_dt:
+            self._count += 1
+            self._t[n - 1] += (t - self._t[n - 1]) / self._count
+            self._v[n - 1] += (v - self._v[n - 1]) / self._count
             return
         if n == self.capacity:
             self._compact()
@@ -47,6 +53,8 @@ class DecimatingSeries:
         self._t[n] = t
         self._v[n] = v
         self._n = n + 1
+        self._start = t
+        self._count = 1
 
     def _compact(self) -> None:
         n = self._n

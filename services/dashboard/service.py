@@ -80,6 +80,8 @@ class DashboardView:
         self.clients_seen = 0
         self.frame_ms = 0.0
 
+        server.initial_camera.position = (2.6, -2.2, 3.6)
+        server.initial_camera.look_at = (0.0, 1.3, 0.6)
         gui = server.gui
         gui.configure_theme(control_width="large", dark_mode=False, show_share_button=False)
         gui.add_markdown(f"## URSA · run `{state.run_id}`")
@@ -94,7 +96,7 @@ class DashboardView:
         with tabs.add_tab("Robot"):
             self.robot = RobotPanel(server, load_meshes=True) if args.robot else None
             if self.robot is None:
-                gui.add_markdown("*robot view disabled (`--robot False`)*")
+                gui.add_markdown("*robot view disabled (`--no-robot`)*")
         plots_tab = tabs.add_tab("Plots")
         with plots_tab:
             self.plots = PlotsPanel(server, plots_tab, max_points=args.plot_points)

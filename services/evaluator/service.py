@@ -199,6 +199,11 @@ class Evaluator:
         finally:
             env.close()
             self.busy = False
+        if not (np.isfinite(res.distance) and np.isfinite(res.ret)):
+            self.failures += 1
+            reply.error = (f"unavailable: policy version {acting.version} produced non-finite "
+                           "actions or features")
+            return reply
         self.evaluations += 1
         reply.achieved.CopyFrom(codec.to_array(res.achieved.astype(np.float32)))
         reply.distance = res.distance

@@ -33,6 +33,10 @@ NAMED_GROUPS: dict[str, str] = {
 PALETTE = ("#1f77b4", "#ff7f0e", "#2ca02c", "#d62728", "#9467bd", "#8c564b", "#e377c2",
            "#7f7f7f", "#bcbd22", "#17becf")
 SERVICE_ORDER = ("collector", "learner", "repertoire", "evaluator", "dashboard", "api")
+PRIORITY = ("violation_rate", "rescues", "return_mean", "steps_per_s", "loss", "λ1 / λ2 mean",
+            "delta_mean", "entropy_bound", "replay_steps", "policy_version", "policy_lag",
+            "size", "δ", "entropy bound", "commits/s")
+"""Plots shown first, in this order (by title); the others follow alphabetically."""
 
 PlotKey = tuple[str, str]
 """(service, plot title)."""
@@ -63,8 +67,13 @@ def plot_layout(keys: list[SeriesKey], max_plots: int = 80) -> dict[PlotKey, lis
         if len(ids_of[svc]) > 1:
             label = f"{sid}:{label}"
         plots[(svc, title)].append((label, key))
-    ordered = sorted(plots.items(), key=lambda kv: (
-        SERVICE_ORDER.index(kv[0][0]) if kv[0][0] in SERVICE_ORDER else len(SERVICE_ORDER), kv[0]))
+    def rank(pk: PlotKey) -> tuple[int, int, str]:
+        svc, title = pk
+        s = SERVICE_ORDER.index(svc) if svc in SERVICE_ORDER else len(SERVICE_ORDER)
+        p = PRIORITY.index(title) if title in PRIORITY else len(PRIORITY)
+        return s, p, title
+
+    ordered = sorted(plots.items(), key=lambda kv: rank(kv[0]))
     return dict(ordered[:max_plots])
 
 
@@ -98,6 +107,7 @@ class PlotsPanel:
     def update(self, series: Mapping[SeriesKey, tuple[np.ndarray, np.ndarray]]) -> int:
         """Create, refresh or remove plots; returns the number of plots shown."""
         layout = plot_layout([k for k, (t, _) in series.items() if len(t)], self.max_plots)
+        rank = {pk: i for i, pk in enumerate(layout)}
         points = 0
         with self.server.atomic():
             for pk in [pk for pk in self.plots if pk not in layout]:
@@ -125,7 +135,7 @@ class PlotsPanel:
                 with self._folder(pk[0]):
                     handle = self.server.gui.add_uplot(
                         data=data, series=series_cfg, title=pk[1], aspect=1.6,
-                        order=float(sorted(layout).index(pk)),
+                        order=float(rank[pk]),
                         legend=viser.uplot.Legend(show=True),
                     )
                 self.plots[pk] = (labels, handle)

@@ -268,9 +268,12 @@ class RepertoirePanel:
         content = self.selection_markdown()
         with self.server.atomic():
             if row is not None and snap is not None:
-                self.selected_marker.position = tuple(self.frame.world(snap.skills[row]))
-                self.selected_marker.visible = True
-            else:
+                pos = self.frame.world(snap.skills[row])
+                if not np.allclose(self.selected_marker.position, pos):
+                    self.selected_marker.position = tuple(pos)
+                if not self.selected_marker.visible:
+                    self.selected_marker.visible = True
+            elif self.selected_marker.visible:
                 self.selected_marker.visible = False
             if self.info.content != content:
                 self.info.content = content

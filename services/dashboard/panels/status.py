@@ -38,21 +38,22 @@ def summary_markdown(snap: SnapshotView | None, collectors: list[CollectorInfo],
 
 
 def collectors_markdown(collectors: list[CollectorInfo]) -> str:
-    """Table of the live collectors: steps, steps/s, violation rate, rescues, damage, skill."""
+    """One item per live collector: steps, steps/s, violation rate, rescues, return, policy
+    version, damage and current skill (a list, not a table: it wraps in a narrow panel)."""
     live = [c for c in collectors if c.alive]
     if not live:
         return "*no collector alive yet*"
-    rows = ["| collector | steps | steps/s | violation rate | rescues | return | policy | "
-            "damage | skill |", "|---|---|---|---|---|---|---|---|---|"]
+    rows = []
     for c in live:
         if c.stats is None:
-            rows.append(f"| {c.id} | *no stats yet* | | | | | | | |")
+            rows.append(f"- **{c.id}** *no stats yet*")
             continue
         rows.append(
-            f"| {c.id} | {_num(c.get('steps'))} | {_num(c.get('steps_per_s'))} | "
-            f"{_num(c.get('violation_rate'), '.3f')} | {_num(c.get('rescues'))} | "
-            f"{_num(c.get('return_mean'), '.3f')} | {_num(c.get('policy_version'))} | "
-            f"{c.damage or '–'} | {_skill(c)} |")
+            f"- **{c.id}** · {_num(c.get('steps_per_s'))} steps/s · "
+            f"{_num(c.get('steps'))} steps · violation rate "
+            f"{_num(c.get('violation_rate'), '.3f')} · rescues {_num(c.get('rescues'))} · "
+            f"return {_num(c.get('return_mean'), '.3f')} · policy "
+            f"{_num(c.get('policy_version'))} · damage {c.damage or '–'} · skill {_skill(c)}")
     return "\n".join(rows)
 
 
