@@ -47,3 +47,33 @@ proto: $(STAMP)
 
 clean:
 	rm -rf $(VENV) .pytest_cache .mypy_cache .ruff_cache
+
+# ---- docker: the compose deployment (docs/deploy.md) -----------------------------------------
+COMPOSE ?= $(shell docker compose version >/dev/null 2>&1 && echo "docker compose" || echo docker-compose)
+COLLECTORS ?= 2
+
+.PHONY: docker-base docker-build docker-lock docker-up docker-down docker-test
+
+## docker-base: local Debian base image from this machine's apt sources (no registry needed)
+docker-base:
+	docker/build-base.sh
+
+## docker-build: the URSA image (URSA_IMAGE, default ursa:latest) on the local base, from a wheelhouse
+docker-build:
+	docker/build.sh
+
+## docker-lock: re-pin the image's transitive dependencies (docker/constraints.txt)
+docker-lock: $(STAMP)
+	$(PY) docker/deps.py lock
+
+## docker-up: build, then the stack in containers; COLLECTORS=4 scales the collectors
+docker-up: docker-build
+	$(COMPOSE) up -d --scale collector=$(COLLECTORS)
+
+## docker-down: stop the stack (the run-directory volume stays; `$(COMPOSE) down -v` drops it)
+docker-down:
+	$(COMPOSE) down
+
+## docker-test: the compose deployment test (builds the image, ~15 min)
+docker-test: $(STAMP)
+	$(PY) -m pytest -m docker tests/integration/test_compose.py $(PYTEST_ARGS)

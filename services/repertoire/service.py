@@ -197,12 +197,7 @@ class RepertoireService:
         period = 1.0 / self.args.snapshot_hz
         last_pub = last_save = 0.0
         while not self.rt.stop.is_set():
-            try:
-                self._commit(self.inbox.get(timeout=0.05))
-                while True:
-                    self._commit(self.inbox.get_nowait())
-            except queue.Empty:
-                pass
+            self._drain(budget_s=0.2)
             now = time.monotonic()
             if now - last_pub >= period:
                 self.version += 1
@@ -214,6 +209,25 @@ class RepertoireService:
             if now - last_save >= self.args.save_every_s:
                 self.save()
                 last_save = now
+
+    def _drain(self, budget_s: float) -> None:
+        """Commit what arrived, in batches, for at most ``budget_s`` so that snapshots and stats
+        keep their schedule however fast the collectors are (the rest waits in the inbox)."""
+        deadline = time.monotonic() + budget_s
+        try:
+            batch = [self.inbox.get(timeout=0.05)]
+        except queue.Empty:
+            return
+        while True:
+            while len(batch) < 64:
+                try:
+                    batch.append(self.inbox.get_nowait())
+                except queue.Empty:
+                    break
+            self._commit(np.concatenate(batch))
+            if self.inbox.empty() or time.monotonic() > deadline:
+                return
+            batch = []
 
     def _publish_stats(self, snap: pb.RepertoireSnapshot) -> None:
         with self.lock:
@@ -231,6 +245,7 @@ class RepertoireService:
                 "accepted_per_s": (rep.accepted - a0) / dt if len(self.commits_window) > 1 else 0,
                 "rejected_per_s": (rep.rejected - r0) / dt if len(self.commits_window) > 1 else 0,
                 "pending_inputs": sum(len(p) for p in self.pending),
+                "inbox": self.inbox.qsize(),
             }
         self.rt.publish_stats(scalars)
 
