@@ -5,7 +5,8 @@
 - ``SFCritic``: the successor features in discounted-average units, m(s, z) = (1 − γ) ψ(s, z),
   parameterised as z + MLP(s, z) (see docs/learner.md).
 - ``Multiplier``: λ_i(s, z) = sigmoid(MLP(s, z)).
-- Pure functions: :func:`lambda_return`, :func:`mahalanobis`, :func:`actor_objective`,
+- Pure functions: :func:`lambda_return`, :func:`mahalanobis`, :func:`whitened_sq`,
+  :func:`actor_objective`,
   :func:`percentile_update`.
 """
 
@@ -14,7 +15,7 @@ from __future__ import annotations
 import torch
 from torch import nn
 
-from ursa.distributions import tanh_normal_sample, two_hot_loss, two_hot_mean
+from ursa.distributions import tanh_normal_sample, two_hot_mean
 from ursa.learner_config import LearnerConfig
 from ursa.networks import MLP
 
@@ -46,6 +47,12 @@ def mahalanobis(x: torch.Tensor, whiten: torch.Tensor, eps: float = 1e-8) -> tor
     return torch.sqrt(y.pow(2).sum(-1) + eps)
 
 
+def whitened_sq(x: torch.Tensor, whiten: torch.Tensor) -> torch.Tensor:
+    """Squared Mahalanobis norm ‖x‖²_Σ (...) of x (..., D), A (D, D) with A Σ Aᵀ = I (smooth
+    at 0, unlike the square of :func:`mahalanobis`)."""
+    return (x @ whiten.T).pow(2).sum(-1)
+
+
 def actor_objective(
     value: torch.Tensor,
     distance: torch.Tensor,
@@ -59,9 +66,7 @@ def actor_objective(
     value, distance, cost, lam1, lam2: same shape (...); each term arrives already normalised.
     """
     return (
-        (1.0 - lam1) * (1.0 - lam2) * value
-        - lam1 * (1.0 - lam2) * (distance - delta)
-        - lam2 * cost
+        (1.0 - lam1) * (1.0 - lam2) * value - lam1 * (1.0 - lam2) * (distance - delta) - lam2 * cost
     )
 
 
@@ -105,7 +110,9 @@ class Actor(nn.Module):
         super().__init__()
         self.min_std, self.max_std = config.actor_min_std, config.actor_max_std
         self.act_dim = act_dim
-        self.mlp = MLP(feat_dim + skill_dim, 2 * act_dim, config.units, config.layers, zero_out=True)
+        self.mlp = MLP(
+            feat_dim + skill_dim, 2 * act_dim, config.units, config.layers, zero_out=True
+        )
 
     def forward(self, feat: torch.Tensor, skill: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """(..., F), (..., D) -> pre-tanh mean and std (..., A)."""
@@ -134,7 +141,9 @@ class TwoHotCritic(nn.Module):
         self, config: LearnerConfig, feat_dim: int, skill_dim: int, bins: torch.Tensor
     ) -> None:
         super().__init__()
-        self.mlp = MLP(feat_dim + skill_dim, config.bins, config.units, config.layers, zero_out=True)
+        self.mlp = MLP(
+            feat_dim + skill_dim, config.bins, config.units, config.layers, zero_out=True
+        )
         self.register_buffer("bins", bins.clone(), persistent=False)
 
     def logits(self, feat: torch.Tensor, skill: torch.Tensor) -> torch.Tensor:
@@ -144,10 +153,6 @@ class TwoHotCritic(nn.Module):
     def forward(self, feat: torch.Tensor, skill: torch.Tensor) -> torch.Tensor:
         """Expected value (...)."""
         return two_hot_mean(self.logits(feat, skill), self.bins)
-
-    def loss(self, feat: torch.Tensor, skill: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
-        """Two-hot cross-entropy (...) against the target returns (...)."""
-        return two_hot_loss(self.logits(feat, skill), target, self.bins)
 
 
 class SFCritic(nn.Module):
@@ -166,10 +171,6 @@ class SFCritic(nn.Module):
         """(..., F), (..., D) -> (..., D)."""
         return skill + self.mlp(torch.cat([feat, skill], -1))
 
-    def loss(self, feat: torch.Tensor, skill: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
-        """Squared error (...) summed over D against target (..., D)."""
-        return (self(feat, skill) - target.detach()).pow(2).sum(-1)
-
 
 class Multiplier(nn.Module):
     """λ(s, z) = sigmoid(MLP(s, z)), one hidden layer; 0.5 at initialisation."""
@@ -185,10 +186,3 @@ class Multiplier(nn.Module):
     def forward(self, feat: torch.Tensor, skill: torch.Tensor) -> torch.Tensor:
         """λ in (0, 1) (...)."""
         return torch.sigmoid(self.logit(feat, skill))
-
-    def loss(self, feat: torch.Tensor, skill: torch.Tensor, violated: torch.Tensor) -> torch.Tensor:
-        """Binary cross-entropy (...) on the logits: λ rises where ``violated`` (...) is 1 and
-        falls where it is 0 (QDAC)."""
-        return nn.functional.binary_cross_entropy_with_logits(
-            self.logit(feat, skill), violated.detach().to(feat.dtype), reduction="none"
-        )

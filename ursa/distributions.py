@@ -67,13 +67,11 @@ def unimix_logits(logits: torch.Tensor, unimix: float) -> torch.Tensor:
     return torch.log(probs)
 
 
-def sample_onehot_st(
-    logp: torch.Tensor, generator: torch.Generator | None = None
-) -> torch.Tensor:
+def sample_onehot_st(logp: torch.Tensor, generator: torch.Generator | None = None) -> torch.Tensor:
     """A one-hot sample (..., K) from log-probabilities (..., K) with straight-through
     gradients (the sample's gradient is the probabilities')."""
     probs = logp.exp()
-    u = torch.rand(probs.shape[:-1] + (1,), generator=generator, device=probs.device)
+    u = torch.rand((*probs.shape[:-1], 1), generator=generator, device=probs.device)
     idx = (probs.detach().cumsum(-1) < u).sum(-1, keepdim=True).clamp(max=probs.shape[-1] - 1)
     onehot = torch.zeros_like(probs).scatter_(-1, idx, 1.0)
     return onehot + probs - probs.detach()

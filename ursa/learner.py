@@ -10,9 +10,10 @@ One ``train_step``:
 2. Imagination: from the B·T posterior states (or ``imag_starts`` of them), each with its own
    skill z drawn from the repertoire's KDE, H steps of the actor in the model.
 3. λ-returns of the reward (V), of (1 − γ)·φ (m = (1 − γ)ψ) and of the cost (C), bootstrapped
-   from the slow critics. The actor maximises J_π (§4.1) by backpropagating through the
-   dynamics; the critics regress the returns; λ1 and λ2 are trained by binary cross-entropy to
-   predict whether ‖m − z‖_Σ > δ and C > 0.
+   from the online critics (the slow critics regularise them, as in DreamerV3 and QDAC-MB).
+   The actor maximises J_π (§4.1) by backpropagating through the dynamics; the critics
+   regress the returns; λ1 and λ2 are trained by binary cross-entropy to predict whether
+   ‖m − z‖_Σ > δ and C > 0.
 4. ``ursa`` mode: one VAE step on the repertoire's stored inputs; a new encoder version is
    published every ``vae_publish_every`` updates.
 
@@ -25,6 +26,7 @@ import copy
 import os
 import tempfile
 import time
+from collections.abc import Mapping
 from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any, Protocol
@@ -43,7 +45,9 @@ from ursa.agent import (
     actor_objective,
     lambda_return,
     mahalanobis,
+    whitened_sq,
 )
+from ursa.distributions import two_hot_loss, two_hot_mean
 from ursa.learner_config import LearnerConfig
 from ursa.policy import pack_policy_weights
 from ursa.vae import VAE
@@ -51,10 +55,14 @@ from ursa.world_model import WorldModel
 
 
 class _RepertoireLike(Protocol):
-    skills: np.ndarray
-    inputs: np.ndarray
-    cov: np.ndarray
     encoder_version: int
+
+    @property
+    def skills(self) -> np.ndarray: ...
+    @property
+    def inputs(self) -> np.ndarray: ...
+    @property
+    def cov(self) -> np.ndarray: ...
 
     def delta(self) -> float: ...
 
@@ -196,7 +204,9 @@ class Learner:
         }
         b, t = out["reward"].shape
         out["cost"] = torch.as_tensor(
-            np.asarray(batch["cost"], np.float32) if "cost" in batch else np.zeros((b, t), np.float32),
+            np.asarray(batch["cost"], np.float32)
+            if "cost" in batch
+            else np.zeros((b, t), np.float32),
             device=dev,
         )
         out["is_first"] = torch.as_tensor(np.asarray(batch["is_first"], bool), device=dev)
@@ -264,53 +274,94 @@ class Learner:
         traj = self.wm.imagine(
             h, z, lambda feat: self.actor.sample(feat, skill, self.gen), c.imag_horizon, self.gen
         )
+        # Returns bootstrap from the online critics (DreamerV3, QDAC-MB); the slow critics only
+        # regularise the critics' outputs. One critic forward serves the actor's returns (its
+        # gradient reaches the states) and the critic losses (gradient to the critic weights).
         feat = traj.feat
         hor = c.imag_horizon
         sk = skill.unsqueeze(0).expand(hor + 1, -1, -1)
+        fd, skd = feat[:-1].detach(), sk[:-1]
+        bins = self.wm.bins
         pred = self.wm.predict(feat[1:])
+        v_logits = self.value.logits(feat, sk)
         ret_v = lambda_return(
-            pred["reward"], self.value_slow(feat, sk), c.discount, c.return_lambda
+            pred["reward"], two_hot_mean(v_logits, bins), c.discount, c.return_lambda
         )
         self.retnorm_v.update(ret_v)
         objective = ret_v / self.retnorm_v.scale()
+        with torch.no_grad():
+            slow_v = self.value_slow(fd, skd)
+        critic_loss = two_hot_loss(v_logits[:-1], ret_v.detach(), bins) + c.slow_critic_reg * (
+            two_hot_loss(v_logits[:-1], slow_v, bins)
+        )
         weight = c.discount ** torch.arange(hor, device=self.device, dtype=torch.float32)
         weight = weight.unsqueeze(1)
-        ret_m = ret_c = dist = None
-        if self.sf_slow is not None and self.cost_slow is not None:
+        metrics["critic/value"] = (weight * critic_loss).mean().detach()
+        lam_loss: torch.Tensor | None = None
+        if self.sf is not None and self.cost is not None:
             assert self.lam1 is not None and self.lam2 is not None
+            assert self.sf_slow is not None and self.cost_slow is not None
+            m_all = self.sf(feat, sk)
             ret_m = lambda_return(
-                (1.0 - c.discount) * pred["phi"],
-                self.sf_slow(feat, sk),
-                c.discount,
-                c.return_lambda,
+                (1.0 - c.discount) * pred["phi"], m_all, c.discount, c.return_lambda
             )
             dist = mahalanobis(ret_m - skill, whiten)
+            c_logits = self.cost.logits(feat, sk)
             ret_c = lambda_return(
-                pred["cost"], self.cost_slow(feat, sk), c.gamma_cost, c.return_lambda
+                pred["cost"], two_hot_mean(c_logits, bins), c.gamma_cost, c.return_lambda
             )
             self.retnorm_c.update(ret_c)
-            with torch.no_grad():
-                lam1 = self.lam1(feat[:-1], sk[:-1])
-                lam2 = self.lam2(feat[:-1], sk[:-1])
+            logit1 = self.lam1.logit(fd, skd)
+            logit2 = self.lam2.logit(fd, skd)
+            lam1, lam2 = torch.sigmoid(logit1).detach(), torch.sigmoid(logit2).detach()
             objective = actor_objective(
                 objective, dist, delta, ret_c / self.retnorm_c.scale(), lam1, lam2
             )
-            metrics["lambda1/mean"] = lam1.mean()
-            metrics["lambda2/mean"] = lam2.mean()
-            metrics["imag/distance"] = dist.detach().mean()
-            metrics["imag/within_delta"] = (dist.detach() <= delta).float().mean()
-            metrics["imag/cost_return"] = ret_c.detach().mean()
-            metrics["ret/cost_scale"] = self.retnorm_c.scale()
-            metrics["delta"] = delta
+            with torch.no_grad():
+                slow_m = self.sf_slow(fd, skd)
+                slow_c = self.cost_slow(fd, skd)
+            # squared errors in the whitened metric of δ: invariant to the features' scale
+            sf_loss = whitened_sq(m_all[:-1] - ret_m.detach(), whiten) + (
+                c.slow_critic_reg * whitened_sq(m_all[:-1] - slow_m, whiten)
+            )
+            cost_loss = two_hot_loss(c_logits[:-1], ret_c.detach(), bins) + c.slow_critic_reg * (
+                two_hot_loss(c_logits[:-1], slow_c, bins)
+            )
+            critic_loss = critic_loss + sf_loss + cost_loss
+            # multipliers rise where their constraint is violated and fall where it holds
+            viol1 = (dist.detach() > delta).float()
+            viol2 = (ret_c.detach() > 0.0).float()
+            bce = nn.functional.binary_cross_entropy_with_logits
+            l1 = (weight * bce(logit1, viol1, reduction="none")).mean()
+            l2 = (weight * bce(logit2, viol2, reduction="none")).mean()
+            lam_loss = l1 + l2
+            metrics.update(
+                {
+                    "critic/sf": (weight * sf_loss).mean().detach(),
+                    "critic/cost": (weight * cost_loss).mean().detach(),
+                    "lambda1/mean": lam1.mean(),
+                    "lambda2/mean": lam2.mean(),
+                    "lambda1/loss": l1.detach(),
+                    "lambda2/loss": l2.detach(),
+                    "lambda1/violated": viol1.mean(),
+                    "lambda2/violated": viol2.mean(),
+                    "imag/distance": dist.detach().mean(),
+                    "imag/within_delta": 1.0 - viol1.mean(),
+                    "imag/cost_return": ret_c.detach().mean(),
+                    "ret/cost_scale": self.retnorm_c.scale(),
+                    "delta": delta,
+                }
+            )
         entropy = -traj.logp
         actor_loss = -(weight * objective).mean() - c.actor_entropy * (weight * entropy).mean()
+        critic_loss = (weight * critic_loss).mean()
         self._sync()
         times["imagination"] = time.perf_counter() - t0
 
         # 3. actor: backprop through the dynamics; only the actor's parameters get gradients
         t0 = time.perf_counter()
         params = list(self.actor.parameters())
-        grads = torch.autograd.grad(actor_loss, params)
+        grads = torch.autograd.grad(actor_loss, params, retain_graph=True)
         for p, g in zip(params, grads, strict=True):
             p.grad = g
         metrics["actor/grad_norm"] = _clip_step(self.actor_opt, params, c.ac_clip)
@@ -322,21 +373,14 @@ class Learner:
         self._sync()
         times["actor"] = time.perf_counter() - t0
 
-        # 4. critics on the detached rollout, slow copies follow by EMA
+        # 4. critics (gradients to their own weights only), slow copies follow by EMA
         t0 = time.perf_counter()
-        fd, skd = feat[:-1].detach(), sk[:-1]
-        critic_loss = (weight * self.value.loss(fd, skd, ret_v.detach())).mean()
-        metrics["critic/value"] = critic_loss.detach()
-        if self.sf is not None and self.cost is not None:
-            assert ret_m is not None and ret_c is not None
-            sf_loss = (weight * self.sf.loss(fd, skd, ret_m.detach())).mean()
-            cost_loss = (weight * self.cost.loss(fd, skd, ret_c.detach())).mean()
-            critic_loss = critic_loss + sf_loss + cost_loss
-            metrics["critic/sf"] = sf_loss.detach()
-            metrics["critic/cost"] = cost_loss.detach()
+        cparams = [p for m in self.critics for p in m.parameters()]
+        grads = torch.autograd.grad(critic_loss, cparams)
+        for p, g in zip(cparams, grads, strict=True):
+            p.grad = g
+        _clip_step(self.critic_opt, cparams, c.ac_clip)
         self.critic_opt.zero_grad(set_to_none=True)
-        critic_loss.backward()
-        _clip_step(self.critic_opt, [p for m in self.critics for p in m.parameters()], c.ac_clip)
         _ema(self.value_slow, self.value, c.slow_critic_fraction)
         if self.sf_slow is not None and self.sf is not None:
             _ema(self.sf_slow, self.sf, c.slow_critic_fraction)
@@ -345,22 +389,13 @@ class Learner:
         self._sync()
         times["critics"] = time.perf_counter() - t0
 
-        # 5. multipliers: rise where the constraint is violated, fall where it holds
+        # 5. multipliers (their inputs are detached: the graph holds only their own weights)
         t0 = time.perf_counter()
-        if self.lam1 is not None and self.lam2 is not None and self.lagrange_opt is not None:
-            assert dist is not None and ret_c is not None
-            viol1 = dist.detach() > delta
-            viol2 = ret_c.detach() > 0.0
-            l1 = (weight * self.lam1.loss(fd, skd, viol1)).mean()
-            l2 = (weight * self.lam2.loss(fd, skd, viol2)).mean()
+        if lam_loss is not None and self.lagrange_opt is not None:
             self.lagrange_opt.zero_grad(set_to_none=True)
-            (l1 + l2).backward()
-            lam_params = [*self.lam1.parameters(), *self.lam2.parameters()]
+            lam_loss.backward()
+            lam_params = [p for m in (self.lam1, self.lam2) if m for p in m.parameters()]
             _clip_step(self.lagrange_opt, lam_params, c.ac_clip)
-            metrics["lambda1/loss"] = l1.detach()
-            metrics["lambda2/loss"] = l2.detach()
-            metrics["lambda1/violated"] = viol1.float().mean()
-            metrics["lambda2/violated"] = viol2.float().mean()
         self._sync()
         times["multipliers"] = time.perf_counter() - t0
 
@@ -416,7 +451,8 @@ class Learner:
         """Model states s (B, T, F) of a replay-like batch (obs, action, is_first)."""
         data = self._tensors({**batch, "reward": np.zeros(np.shape(batch["is_first"]))})
         embed = self.wm.encoder(data["obs"])
-        post = self.wm.rssm.observe(embed, data["action"], data["is_first"], self.gen)
+        gen = torch.Generator(device=self.device).manual_seed(0)  # leave training's RNG alone
+        post = self.wm.rssm.observe(embed, data["action"], data["is_first"], gen)
         return self.wm.feat(post["h"], post["z"])
 
     @torch.no_grad()
@@ -543,7 +579,7 @@ class Learner:
         self.load_state_dict(state)
 
 
-def _np_state_to_plain(state: dict[str, Any]) -> dict[str, Any]:
+def _np_state_to_plain(state: Mapping[str, Any]) -> dict[str, Any]:
     """numpy bit-generator state with its 128-bit integers as decimal strings (so that
     ``torch.load(weights_only=True)`` reads it back without custom classes)."""
 

@@ -78,7 +78,10 @@ class LearnerConfig:
     return_lambda: float = 0.95
     """λ of the TD(λ) returns."""
     slow_critic_fraction: float = 0.02
-    """EMA rate of the slow (target) critics, updated after every critic step."""
+    """EMA rate of the slow critics, updated after every critic step."""
+    slow_critic_reg: float = 1.0
+    """Weight of the loss pulling each critic towards its slow copy's output (DreamerV3's
+    ``critic_slowreg``); the returns themselves bootstrap from the online critics."""
     retnorm_rate: float = 0.01
     """EMA rate of the 5th/95th return percentiles (DreamerV3 return normalisation)."""
     retnorm_limit: float = 1.0
@@ -160,7 +163,7 @@ class LearnerConfig:
             classes=8,
             units=64,
             layers=2,
-            bins=63,
+            bins=255,
             batch_size=16,
             seq_len=32,
             imag_starts=256,
@@ -210,7 +213,11 @@ class LearnerConfig:
 
 def learner_preset(name: LearnerPresetName, **overrides: object) -> LearnerConfig:
     """The learner config of a preset, with optional field overrides."""
-    factory = {"tiny": LearnerConfig.tiny, "small": LearnerConfig.small, "paper": LearnerConfig.paper}
+    factory = {
+        "tiny": LearnerConfig.tiny,
+        "small": LearnerConfig.small,
+        "paper": LearnerConfig.paper,
+    }
     if name not in factory:
         raise ValueError(f"unknown preset {name!r}")
     return factory[name](**overrides)

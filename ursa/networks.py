@@ -13,9 +13,7 @@ class MLP(nn.Module):
     value heads, so that their first predictions are 0 instead of noise).
     """
 
-    def __init__(
-        self, inp: int, out: int, units: int, layers: int, zero_out: bool = False
-    ) -> None:
+    def __init__(self, inp: int, out: int, units: int, layers: int, zero_out: bool = False) -> None:
         super().__init__()
         mods: list[nn.Module] = []
         d = inp

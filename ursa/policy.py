@@ -95,10 +95,14 @@ class Policy:
         return mods
 
     def load_weights_bytes(self, b: bytes, version: int | None = None) -> None:
-        """Load weights written by :func:`pack_policy_weights` (strict: every tensor must match).
-
-        ``version`` overrides the version stored in the bytes."""
-        tensors = st_load(b)
+        """Load weights written by :func:`pack_policy_weights`; ``version`` overrides the one
+        stored in the bytes. Every tensor must match by name and shape, else ValueError and the
+        current weights stay untouched (a collector counts and drops such a message)."""
+        try:
+            tensors = st_load(bytes(b))
+            meta = _metadata(b)
+        except Exception as e:  # safetensors raises its own error type on garbage
+            raise ValueError(f"unreadable policy weights: {e}") from e
         mods = self.modules()
         parts: dict[str, dict[str, torch.Tensor]] = {name: {} for name in mods}
         for key, v in tensors.items():
@@ -107,8 +111,15 @@ class Policy:
                 raise ValueError(f"unexpected tensor {key!r} in policy weights")
             parts[name][rest] = v
         for name, mod in mods.items():
+            own = mod.state_dict()
+            got = parts[name]
+            if set(own) != set(got):
+                raise ValueError(f"policy weights for {name!r} have other tensors")
+            for k, v in own.items():
+                if v.shape != got[k].shape or v.dtype != got[k].dtype:
+                    raise ValueError(f"{name}.{k}: {tuple(got[k].shape)} != {tuple(v.shape)}")
+        for name, mod in mods.items():
             mod.load_state_dict(parts[name], strict=True)
-        meta = _metadata(b)
         self.version = int(meta.get("version", -1)) if version is None else int(version)
         self.vae_version = int(meta.get("vae_version", 0))
 
@@ -128,16 +139,15 @@ class Policy:
     ) -> tuple[np.ndarray, PolicyCarry]:
         """Filter ``obs`` (obs_dim,) and choose an action (A,) in [−1, 1] for ``skill`` (D,).
 
-        ``explore``: sample the action (and the latent) instead of taking the modes. ``rng``
-        draws the action noise (the policy's own generator when None). Returns the action and
+        ``explore``: sample the action instead of taking tanh(mean); the RSSM latent is sampled
+        either way (DreamerV3; the actor was trained on samples). ``rng`` draws the action noise (the policy's own generator when None). Returns the action and
         the new carry (which remembers this action as the next step's previous action).
         """
         with torch.inference_mode():
             o = torch.as_tensor(np.asarray(obs, np.float32).reshape(1, self.obs_dim))
             embed = self.encoder(o)
-            h, z = self.rssm.obs_step(
-                carry.h, carry.z, carry.action, embed, self._gen, sample=explore
-            )
+            # latents are always sampled: the actor never saw a posterior mode in training
+            h, z = self.rssm.obs_step(carry.h, carry.z, carry.action, embed, self._gen)
             feat = torch.cat([h, z], -1)
             if self.skill_dim:
                 s = torch.as_tensor(np.asarray(skill, np.float32).reshape(1, self.skill_dim))

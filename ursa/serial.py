@@ -26,8 +26,8 @@ from ursa.envs.base import ResetFreeEnv
 from ursa.learner import Learner, SkillSnapshot
 from ursa.learner_config import LearnerConfig
 from ursa.policy import Policy, PolicyCarry
-from ursa.replay import Replay
 from ursa.repertoire import Repertoire, RepertoireConfig
+from ursa.replay import Replay
 
 
 @dataclass(frozen=True)
@@ -71,6 +71,10 @@ class EvalResult:
     """Undiscounted sum of rewards over the T steps (K,)."""
     violation_rate: np.ndarray
     """Fraction of unsafe steps (K,)."""
+    obs: np.ndarray | None = None
+    """Observations (K, T, obs_dim) after each step, when recorded."""
+    actions: np.ndarray | None = None
+    """Actions (K, T, act_dim), when recorded."""
 
     def within(self, delta: float) -> np.ndarray:
         """Which skills were achieved within δ (K,) bool."""
@@ -84,14 +88,19 @@ def evaluate_skills(
     steps: int,
     metric_cov: np.ndarray,
     feature: str = "position",
-    explore: bool = False,
+    explore: bool = True,
     rng: np.random.Generator | None = None,
+    record: bool = False,
 ) -> EvalResult:
     """Run each skill (K, D) for ``steps`` env steps in turn, without resets.
 
     ``policy`` None acts uniformly at random. The achieved skill is the mean of φ over the
     steps (the policy's φ, i.e. its VAE encoder in ``ursa`` mode, applied to
     ``info["features"][feature]``); distances use Σ = ``metric_cov``, the metric of δ.
+    ``explore`` (default) runs the stochastic policy π_z whose skill is E_π[φ] (Definition 2.1;
+    it is also what the actor is trained as); False takes tanh(mean) actions. ``record`` keeps
+    the observations and actions (replay convention: the observation after
+    each action).
     """
     rng = rng or np.random.default_rng(0)
     skills = np.asarray(skills, np.float64)
@@ -101,14 +110,19 @@ def evaluate_skills(
     achieved = np.zeros_like(skills)
     returns = np.zeros(k)
     viol = np.zeros(k)
+    all_obs = np.zeros((k, steps, env.obs_dim), np.float32) if record else None
+    all_act = np.zeros((k, steps, env.act_dim), np.float32) if record else None
     for i, z in enumerate(skills):
         inputs = []
-        for _ in range(steps):
+        for t in range(steps):
             if policy is None or carry is None:
                 action = rng.uniform(-1.0, 1.0, env.act_dim)
             else:
                 action, carry = policy.act(carry, obs, z, explore=explore, rng=rng)
             obs, reward, _, _, info = env.step(action)
+            if all_obs is not None and all_act is not None:
+                all_obs[i, t] = obs
+                all_act[i, t] = action
             inputs.append(np.asarray(info["features"][feature], np.float64))
             returns[i] += float(reward)
             viol[i] += 0.0 if info["safe"] else 1.0
@@ -117,7 +131,7 @@ def evaluate_skills(
         achieved[i] = phi.mean(0)
     whiten = kde.whitening_matrix(kde.regularize_cov(metric_cov))
     distance = np.linalg.norm((achieved - skills) @ whiten.T, axis=-1)
-    return EvalResult(skills, achieved, distance, returns, viol / steps)
+    return EvalResult(skills, achieved, distance, returns, viol / steps, all_obs, all_act)
 
 
 @dataclass
@@ -251,7 +265,11 @@ class SerialLoop:
             self.history.append(metrics)
             done += 1
             rep = self.repertoire
-            if rep is not None and lc.mode == "ursa" and rep.encoder_version != self.learner.vae_version:
+            if (
+                rep is not None
+                and lc.mode == "ursa"
+                and rep.encoder_version != self.learner.vae_version
+            ):
                 rep.reencode(self.learner.encode, self.learner.vae_version)
                 self._snapshot = None
                 self.sync_policy()

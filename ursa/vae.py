@@ -88,4 +88,3 @@ class VAE(nn.Module):
 def vae_kl_gaussian(mu: torch.Tensor, std: torch.Tensor) -> torch.Tensor:
     """KL(N(mu, std²) ‖ N(0, I)) (...) summed over the last axis of (..., D)."""
     return 0.5 * (mu.pow(2) + std.pow(2) - 1.0 - 2.0 * torch.log(std)).sum(-1)
-

@@ -98,10 +98,10 @@ class RSSM(nn.Module):
         h0, z0 = self.initial(b)
         h, z = h0, z0
         hs, zs, posts = [], [], []
+        # one host sync up front instead of masking every step (gaps are rare)
+        resets = is_first.any(0).tolist()
         for t in range(t_len):
-            if t == 0:
-                h, z = h0, z0
-            else:
+            if t > 0 and resets[t]:
                 m = is_first[:, t : t + 1].to(h.dtype)
                 h = m * h0 + (1.0 - m) * h
                 z = m * z0 + (1.0 - m) * z
@@ -175,6 +175,8 @@ class Imagined:
 class WorldModel(nn.Module):
     """Encoder + RSSM + heads (decoder, reward, cost, φ)."""
 
+    bins: torch.Tensor
+
     def __init__(
         self,
         config: LearnerConfig,
@@ -191,7 +193,9 @@ class WorldModel(nn.Module):
         f = self.rssm.feat_dim
         self.decoder = MLP(f, obs_dim, c.units, c.layers)
         self.reward = MLP(f, c.bins, c.units, c.layers, zero_out=True)
-        self.cost: MLP | None = MLP(f, c.bins, c.units, c.layers, zero_out=True) if cost_head else None
+        self.cost: MLP | None = (
+            MLP(f, c.bins, c.units, c.layers, zero_out=True) if cost_head else None
+        )
         self.phi: MLP | None = MLP(f, phi_dim, c.units, c.layers) if phi_dim > 0 else None
         self.register_buffer("bins", symexp_bins(c.bins), persistent=False)
 

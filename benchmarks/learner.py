@@ -1,0 +1,135 @@
+"""Learner updates per second for the ``small`` and ``paper`` presets, split by phase.
+
+Claim: one URSA update (world model + imagination with V, ψ, C, λ1, λ2 and the actor + VAE)
+costs a bounded multiple of the same learner in ``daydreamer`` mode (world model + reward-only
+actor-critic), measured in the same run on the same device, with the time split between world
+model, imagination, actor, critics, multipliers and VAE.
+
+Inputs are synthetic but shaped like the A1 (obs 46, action 12, VAE input 13, D = 3) with a
+repertoire snapshot of N_R = 5000 skills; no env is stepped, so this times the learner alone.
+
+    .venv/bin/python benchmarks/learner.py            # small + paper, CUDA if available
+    .venv/bin/python benchmarks/learner.py --quick    # < 60 s on a CPU
+    .venv/bin/python benchmarks/learner.py --device cpu --presets small --updates 20
+
+The last line is ``RESULT updates_per_s=<small, ursa mode> ...``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import time
+
+import numpy as np
+import torch
+
+from ursa.learner import Learner, SkillSnapshot
+from ursa.learner_config import LearnerConfig, learner_preset
+from ursa.repertoire import Repertoire, RepertoireConfig
+
+OBS, ACT, VAE_IN, D = 46, 12, 13, 3
+PHASES = ("wm", "imagination", "actor", "critics", "multipliers", "vae")
+
+
+def _batch(cfg: LearnerConfig, rng: np.random.Generator) -> dict[str, np.ndarray]:
+    b, t = cfg.batch_size, cfg.seq_len
+    first = np.zeros((b, t), bool)
+    first[:, 0] = True
+    return {
+        "obs": rng.normal(size=(b, t, OBS)).astype(np.float32),
+        "action": rng.uniform(-1, 1, size=(b, t, ACT)).astype(np.float32),
+        "reward": rng.normal(size=(b, t)).astype(np.float32),
+        "cost": rng.normal(size=(b, t)).astype(np.float32),
+        "features": rng.normal(size=(b, t, VAE_IN)).astype(np.float32),
+        "is_first": first,
+    }
+
+
+def _snapshot(learner: Learner, rng: np.random.Generator) -> SkillSnapshot:
+    inputs = rng.normal(size=(6000, VAE_IN))
+    rep = Repertoire(RepertoireConfig(size=5000, dim=D, n_z=100, input_dim=VAE_IN))
+    rep.commit_many(learner.encode(inputs), inputs)
+    return SkillSnapshot.from_repertoire(rep)
+
+
+def measure(cfg: LearnerConfig, updates: int, warmup: int) -> dict[str, float]:
+    """Updates per second of ``cfg`` and the mean seconds per phase."""
+    rng = np.random.default_rng(0)
+    learner = Learner(cfg, OBS, ACT, VAE_IN)
+    learner.profile = True  # synchronise around phases so the split is right on a GPU
+    snap = _snapshot(learner, rng) if cfg.uses_skills else None
+    batches = [_batch(cfg, rng) for _ in range(min(updates + warmup, 4))]
+    for i in range(warmup):
+        learner.train_step(batches[i % len(batches)], snap)
+    if learner.device.type == "cuda":
+        torch.cuda.synchronize(learner.device)
+    phases = dict.fromkeys(PHASES, 0.0)
+    start = time.perf_counter()
+    for i in range(updates):
+        m = learner.train_step(batches[i % len(batches)], snap)
+        for p in PHASES:
+            phases[p] += m[f"time/{p}"] / updates
+    if learner.device.type == "cuda":
+        torch.cuda.synchronize(learner.device)
+    total = time.perf_counter() - start
+    return {"updates_per_s": updates / total, "s_per_update": total / updates, **phases}
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--device", default="cuda" if torch.cuda.is_available() else "cpu")
+    ap.add_argument("--presets", default="small,paper", help="comma-separated presets")
+    ap.add_argument("--updates", type=int, default=0, help="timed updates (0: by preset)")
+    ap.add_argument("--threads", type=int, default=0, help="torch CPU threads (0: default)")
+    ap.add_argument("--quick", action="store_true", help="few updates, < 60 s on a CPU")
+    args = ap.parse_args()
+    if args.threads:
+        torch.set_num_threads(args.threads)
+    cuda = args.device.startswith("cuda")
+    rows = []
+    for name in args.presets.split(","):
+        base = learner_preset(name, device=args.device)  # type: ignore[arg-type]
+        if args.updates:
+            n = args.updates
+        elif args.quick:
+            n = 3 if name == "small" or cuda else 1
+        else:
+            n = 50 if name == "small" or cuda else 5
+        warm = 1 if args.quick else 3
+        for mode in ("ursa", "daydreamer"):
+            if args.quick and mode == "daydreamer" and name != "small" and not cuda:
+                continue  # the CPU quick run keeps the paper preset to one update
+            cfg = dataclasses.replace(base, mode=mode)
+            r = measure(cfg, n, warm)
+            rows.append((name, mode, r))
+            print(f"measured {name}/{mode}: {r['updates_per_s']:.3f} updates/s", flush=True)
+
+    print(f"\ndevice: {args.device}, torch threads: {torch.get_num_threads()}")
+    head = f"{'preset':<7} {'mode':<11} {'upd/s':>8} {'s/upd':>8} " + " ".join(
+        f"{p[:11]:>11}" for p in PHASES
+    )
+    print(head)
+    print("-" * len(head))
+    for name, mode, r in rows:
+        split = " ".join(f"{100 * r[p] / r['s_per_update']:>10.1f}%" for p in PHASES)
+        print(f"{name:<7} {mode:<11} {r['updates_per_s']:>8.3f} {r['s_per_update']:>8.3f} {split}")
+    res = {(n, m): r for n, m, r in rows}
+    out = []
+    for name in args.presets.split(","):
+        u, d = res.get((name, "ursa")), res.get((name, "daydreamer"))
+        if u and d:
+            ratio = d["updates_per_s"] / u["updates_per_s"]
+            print(f"{name}: an URSA update costs {ratio:.2f}x a DayDreamer update (reference)")
+            out.append(f"{name}_cost_vs_daydreamer={ratio:.2f}")
+        if u:
+            wm_share = u["wm"] / u["s_per_update"]
+            print(f"{name}: world model {100 * wm_share:.0f}% of an URSA update")
+            out.append(f"{name}_updates_per_s={u['updates_per_s']:.3f}")
+    small = res.get(("small", "ursa"))
+    first = f"updates_per_s={small['updates_per_s']:.3f}" if small else "updates_per_s=nan"
+    print("RESULT " + " ".join([first, *out, f"device={args.device}"]))
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,300 @@
+"""Learner, policy and serial loop: every mode runs, weights travel as safetensors, checkpoints
+resume bit for bit, the VAE's encoder re-encodes a repertoire. Fast (tiny sizes)."""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+from ursa.envs.point import PointEnv
+from ursa.learner import Learner, SkillSnapshot
+from ursa.learner_config import LearnerConfig, learner_preset
+from ursa.policy import Policy
+from ursa.repertoire import Repertoire, RepertoireConfig
+from ursa.replay import Replay
+from ursa.serial import SerialConfig, SerialLoop, evaluate_skills
+
+torch.set_num_threads(1)
+
+MICRO = LearnerConfig.tiny(
+    deter=32,
+    hidden=32,
+    stoch=4,
+    classes=4,
+    units=32,
+    bins=31,
+    batch_size=4,
+    seq_len=8,
+    imag_horizon=5,
+    imag_starts=16,
+    vae_batch=32,
+    vae_publish_every=3,
+)
+
+
+def _random_replay(steps: int = 600, seed: int = 0, vae_input: bool = False) -> Replay:
+    env = PointEnv(seed=seed)
+    env.reset()
+    rng = np.random.default_rng(seed)
+    rows = []
+    for _ in range(steps):
+        a = rng.uniform(-1, 1, 2)
+        obs, r, _, _, info = env.step(a)
+        pos = info["features"]["position"]
+        rows.append(
+            {
+                "obs": obs,
+                "action": a,
+                "reward": r,
+                "cost": info["cost"],
+                "safe": info["safe"],
+                # a 4-dim "VAE input" (position and its square) for the ursa mode
+                "features": np.concatenate([pos, pos**2]) if vae_input else pos,
+                "skill": np.zeros(3 if vae_input else 2),
+            }
+        )
+    rep = Replay(10_000)
+    for s in range(0, steps, 50):
+        chunk = {k: np.stack([r[k] for r in rows[s : s + 50]]) for k in rows[0]}
+        rep.add("c0", chunk, s)
+    return rep
+
+
+def _snapshot(points: np.ndarray, inputs: np.ndarray | None = None) -> SkillSnapshot:
+    rep = Repertoire(
+        RepertoireConfig(
+            size=200, dim=points.shape[1], n_z=20, input_dim=None if inputs is None else 4
+        )
+    )
+    rep.commit_many(points, inputs)
+    return SkillSnapshot.from_repertoire(rep)
+
+
+@pytest.mark.parametrize("mode", ["ursa-supervised", "ursa", "daydreamer"])
+def test_train_step_every_mode(mode: str) -> None:
+    cfg = dataclasses.replace(MICRO, mode=mode)  # type: ignore[arg-type]
+    vae = mode == "ursa"
+    replay = _random_replay(vae_input=vae)
+    feat_in = 4 if vae else 2
+    learner = Learner(cfg, 6, 2, feat_in)
+    rng = np.random.default_rng(0)
+    pts = rng.uniform(-1, 1, size=(300, 2))
+    snap = None
+    if mode == "ursa-supervised":
+        snap = _snapshot(pts)
+    elif vae:
+        inputs = np.concatenate([pts, pts**2], 1)
+        snap = _snapshot(learner.encode(inputs), inputs)
+    for _ in range(4):
+        m = learner.train_step(replay.sample(cfg.batch_size, cfg.seq_len, rng), snap)
+    assert all(math.isfinite(v) for v in m.values())
+    for key in ("wm/loss", "wm/decoder", "wm/reward", "wm/dyn", "wm/rep", "actor/loss"):
+        assert key in m
+    for key in ("time/wm", "time/imagination", "time/actor", "time/critics", "time/multipliers"):
+        assert m[key] >= 0.0
+    if mode == "daydreamer":
+        assert learner.skill_dim == 0 and "lambda1/mean" not in m and "wm/cost" not in m
+    else:
+        for key in ("critic/sf", "critic/cost", "lambda1/mean", "lambda2/mean", "delta", "wm/phi"):
+            assert key in m
+        assert m["delta"] == pytest.approx(snap.delta if snap else 0.0)
+    if vae:
+        assert learner.skill_dim == 3 and learner.vae_version == 1  # publish_every = 3
+        assert "vae/loss" in m
+
+
+def test_vae_encoder_reencodes_repertoire() -> None:
+    cfg = dataclasses.replace(MICRO, mode="ursa", vae_publish_every=1000)
+    learner = Learner(cfg, 6, 2, 4)
+    rng = np.random.default_rng(0)
+    pts = rng.uniform(-1, 1, size=(400, 2))
+    inputs = np.concatenate([pts, pts**2], 1)
+    rep = Repertoire(RepertoireConfig(size=300, dim=3, n_z=20, input_dim=4))
+    rep.commit_many(learner.encode(inputs), inputs)
+    snap = SkillSnapshot.from_repertoire(rep)
+    assert snap.inputs is not None and snap.inputs.shape == (300, 4)
+    replay = _random_replay(vae_input=True)
+    before = learner.encode(inputs[:5])
+    for _ in range(3):
+        learner.train_step(replay.sample(4, 8, rng), snap)
+    np.testing.assert_array_equal(learner.encode(inputs[:5]), before)  # not published yet
+    version = learner.publish_encoder()
+    assert version == 1
+    rep.reencode(learner.encode, version)
+    assert rep.encoder_version == 1
+    np.testing.assert_allclose(rep.skills, learner.encode(rep.inputs), rtol=1e-6, atol=1e-7)
+    # the collector's policy computes the same φ from the shipped weights
+    pol = Policy(cfg, 6, 2, 3, feat_in_dim=4)
+    pol.load_weights_bytes(learner.policy_weights_bytes())
+    assert pol.vae_version == 1
+    np.testing.assert_allclose(pol.features(inputs[:7]), learner.encode(inputs[:7]), rtol=1e-6)
+
+
+def test_policy_weights_are_safetensors_and_match() -> None:
+    cfg = dataclasses.replace(MICRO, mode="ursa-supervised")
+    learner = Learner(cfg, 6, 2, 2)
+    replay = _random_replay()
+    snap = _snapshot(np.random.default_rng(0).uniform(-1, 1, (300, 2)))
+    for _ in range(3):
+        learner.train_step(replay.sample(4, 8, np.random.default_rng(1)), snap)
+    b = learner.policy_weights_bytes()
+    assert not b.startswith(b"\x80")  # not a pickle
+    from safetensors.torch import load
+
+    tensors = load(b)
+    assert any(k.startswith("actor.") for k in tensors) and any(
+        k.startswith("rssm.") for k in tensors
+    )
+    pol = Policy(cfg, 6, 2, 2)
+    pol.load_weights_bytes(b)
+    assert pol.version == learner.updates == 3
+    for k, v in learner.actor.state_dict().items():
+        torch.testing.assert_close(pol.actor.state_dict()[k], v)
+    # the policy's deterministic action is the learner's actor at the filtered state
+    carry = pol.initial_carry()
+    obs = np.array([0.5, 0.5, 0, 0, 0, 0], np.float32)
+    a, carry2 = pol.act(carry, obs, np.array([0.2, 0.3]), explore=False)
+    with torch.no_grad():
+        h = learner.wm.rssm.core(carry.h, carry.z, carry.action)
+        post = learner.wm.rssm.post_logp(h, learner.wm.encoder(torch.as_tensor(obs)[None]))
+        z = learner.wm.rssm.sample(post, torch.Generator().manual_seed(0))  # Policy(seed=0)
+        want = learner.actor.mode(torch.cat([h, z], -1), torch.tensor([[0.2, 0.3]]))
+    np.testing.assert_allclose(a, want[0].numpy(), rtol=1e-5, atol=1e-6)
+    assert carry2.action.shape == (1, 2)
+    with pytest.raises(ValueError):
+        Policy(dataclasses.replace(cfg, units=16), 6, 2, 2).load_weights_bytes(b)
+
+
+def test_untrained_policy_acts_at_random() -> None:
+    pol = Policy(MICRO, 6, 2, 2, feat_in_dim=4, seed=3)
+    env = PointEnv(seed=0)
+    obs, _ = env.reset()
+    carry = pol.initial_carry()
+    acts = []
+    rng = np.random.default_rng(0)
+    for _ in range(500):
+        a, carry = pol.act(carry, obs, np.zeros(2), explore=True, rng=rng)
+        obs, *_ = env.step(a)
+        acts.append(a)
+    acts_arr = np.array(acts)
+    assert acts_arr.shape == (500, 2) and np.all(np.abs(acts_arr) <= 1.0)
+    assert np.all(np.abs(acts_arr.mean(0)) < 0.1)
+    assert np.all(acts_arr.std(0) > 0.4)  # wide, like uniform actions (std 0.58)
+    assert np.abs(np.corrcoef(acts_arr[:-1, 0], acts_arr[1:, 0])[0, 1]) < 0.15
+    a0, _ = pol.act(pol.initial_carry(), obs, np.zeros(2), explore=False)
+    np.testing.assert_array_equal(a0, np.zeros(2))  # deterministic mode: stand still
+
+
+def _batches(n: int, seed: int) -> list[dict[str, np.ndarray]]:
+    replay = _random_replay(seed=seed)
+    rng = np.random.default_rng(seed)
+    return [replay.sample(4, 8, rng) for _ in range(n)]
+
+
+@pytest.mark.parametrize("mode", ["ursa-supervised", "ursa"])
+def test_checkpoint_resumes_bit_for_bit(tmp_path: Path, mode: str) -> None:
+    cfg = dataclasses.replace(MICRO, mode=mode, vae_publish_every=4)  # type: ignore[arg-type]
+    vae = mode == "ursa"
+    replay = _random_replay(vae_input=vae)
+    rng = np.random.default_rng(0)
+    batches = [replay.sample(4, 8, rng) for _ in range(8)]
+    pts = rng.uniform(-1, 1, size=(300, 2))
+    feat_in = 4 if vae else 2
+    a = Learner(cfg, 6, 2, feat_in)
+    if vae:
+        inputs = np.concatenate([pts, pts**2], 1)
+        snap = _snapshot(a.encode(inputs), inputs)
+    else:
+        snap = _snapshot(pts)
+    for b in batches[:3]:
+        a.train_step(b, snap)
+    path = tmp_path / "learner.pt"
+    a.save_checkpoint(path)
+    cont = [a.train_step(b, snap) for b in batches[3:]]
+    # a fresh learner with another seed, loaded from the checkpoint, continues identically
+    other = Learner(dataclasses.replace(cfg, seed=99), 6, 2, feat_in)
+    other.load_checkpoint(path)
+    again = [other.train_step(b, snap) for b in batches[3:]]
+    for m1, m2 in zip(cont, again, strict=True):
+        for k in m1:
+            if not k.startswith("time/"):
+                assert m1[k] == m2[k], k
+    for (k, v1), v2 in zip(
+        a.actor.state_dict().items(), other.actor.state_dict().values(), strict=True
+    ):
+        assert torch.equal(v1, v2), k
+    assert a.np_rng.random() == other.np_rng.random()
+    if vae:
+        assert a.vae_version == other.vae_version == 2
+
+
+def test_checkpoint_rejects_other_dims(tmp_path: Path) -> None:
+    a = Learner(MICRO, 6, 2, 4)
+    a.save_checkpoint(tmp_path / "c.pt")
+    with pytest.raises(ValueError):
+        Learner(MICRO, 7, 2, 4).load_checkpoint(tmp_path / "c.pt")
+
+
+def test_presets_change_sizes_only() -> None:
+    tiny, small, paper = (learner_preset(n) for n in ("tiny", "small", "paper"))  # type: ignore[arg-type]
+    sizes = {
+        "deter", "hidden", "stoch", "classes", "units", "layers", "bins", "batch_size",
+        "seq_len", "imag_starts", "lagrange_units", "vae_units", "vae_batch",
+    }  # fmt: skip
+    for cfg in (tiny, small):
+        diff = {
+            f.name
+            for f in dataclasses.fields(cfg)
+            if getattr(cfg, f.name) != getattr(paper, f.name)
+        }
+        assert diff <= sizes, diff
+    assert paper.deter == 512 and paper.stoch == 32 and paper.classes == 32 and paper.bins == 255
+    assert paper.discount == 0.995 and paper.imag_horizon == 15 and paper.return_lambda == 0.95
+    assert learner_preset("tiny", mode="daydreamer").mode == "daydreamer"
+    with pytest.raises(ValueError):
+        LearnerConfig(mode="other")  # type: ignore[arg-type]
+
+
+def test_serial_loop_and_evaluation_smoke() -> None:
+    cfg = dataclasses.replace(MICRO, mode="ursa-supervised", train_ratio=4)
+    sc = SerialConfig(
+        prefill=300, skill_period=100, chunk_len=25, sync_every=2, repertoire_size=200, n_z=20
+    )
+    loop = SerialLoop(PointEnv(seed=0), cfg, sc)
+    loop.run(400)
+    assert loop.env_steps == 400 and len(loop.replay) == 400
+    assert loop.learner.updates == 400 * 4 // (4 * 8)
+    assert loop.policy.version == loop.learner.updates
+    assert loop.repertoire is not None and len(loop.repertoire) == 200
+    skills = loop.repertoire.sample(3, np.random.default_rng(0))
+    res = evaluate_skills(loop.policy, PointEnv(seed=1), skills, 20, loop.repertoire.cov)
+    assert res.achieved.shape == (3, 2) and res.distance.shape == (3,)
+    assert np.all((res.violation_rate >= 0) & (res.violation_rate <= 1))
+    rnd = evaluate_skills(None, PointEnv(seed=1), skills, 20, loop.repertoire.cov)
+    assert rnd.returns.shape == (3,)
+
+
+def test_serial_loop_ursa_mode_reencodes() -> None:
+    cfg = dataclasses.replace(MICRO, mode="ursa", train_ratio=4, vae_publish_every=5)
+    sc = SerialConfig(prefill=200, skill_period=50, chunk_len=25, repertoire_size=100, n_z=10)
+
+    class VaeInputPoint(PointEnv):
+        feature_dims = {"position": 2, "vae_input": 4}  # noqa: RUF012
+
+        def step(self, action: np.ndarray):  # type: ignore[no-untyped-def]
+            obs, r, te, tr, info = super().step(action)
+            p = info["features"]["position"]
+            info["features"]["vae_input"] = np.concatenate([p, p**2])
+            return obs, r, te, tr, info
+
+    loop = SerialLoop(VaeInputPoint(seed=0), cfg, dataclasses.replace(sc, feature="vae_input"))
+    loop.run(300)
+    assert loop.learner.vae_version >= 1
+    rep = loop.repertoire
+    assert rep is not None and rep.encoder_version == loop.learner.vae_version
+    np.testing.assert_allclose(rep.skills, loop.learner.encode(rep.inputs), rtol=1e-5, atol=1e-6)
