@@ -140,7 +140,8 @@ class Policy:
         """Filter ``obs`` (obs_dim,) and choose an action (A,) in [−1, 1] for ``skill`` (D,).
 
         ``explore``: sample the action instead of taking tanh(mean); the RSSM latent is sampled
-        either way (DreamerV3; the actor was trained on samples). ``rng`` draws the action noise (the policy's own generator when None). Returns the action and
+        either way (DreamerV3; the actor was trained on samples). ``rng`` draws the action noise
+        (the policy's own generator when None). Returns the action and
         the new carry (which remembers this action as the next step's previous action).
         """
         with torch.inference_mode():

@@ -166,7 +166,7 @@ def _states(ursa_run: dict[str, Any]) -> tuple[torch.Tensor, np.ndarray]:
     """Model states (N, F) and positions (N, 2) along the evaluation trajectories."""
     res: EvalResult = ursa_run["eval"]
     assert res.obs is not None and res.actions is not None
-    _k, t = res.obs.shape[:2]
+    k, t = res.obs.shape[:2]
     first = np.zeros((k, t), bool)
     first[:, 0] = True
     loop: SerialLoop = ursa_run["loop"]
