@@ -93,10 +93,16 @@ def test_learner_killed_resumes_from_checkpoint_with_its_replay(tmp_path: Path) 
         ckpt_updates = json.loads(state)["updates"]
         assert written > 0 and ckpt_updates > 0
 
+        restarted_at = time.time()
         st.start("learner", "services.learner", *LEARNER_ARGS)
-        first = wait_for(lambda: w.get("learner", "main") if _scalar(
-            w, "learner", "main", "uptime_s") < 5 else None, 60, "the restarted learner's stats",
-            0.1)
+
+        def restarted() -> object:
+            s = w.get("learner", "main")  # stats of a process started after the restart
+            if s is not None and s.header.stamp - s.scalars["uptime_s"] >= restarted_at - 0.5:
+                return s
+            return None
+
+        first = wait_for(restarted, 120, "the restarted learner's stats", 0.1)
         assert first.scalars["updates"] >= ckpt_updates
         assert first.scalars["replay_steps"] >= written
         assert "resumed from checkpoint" in st.procs["learner"].log()
