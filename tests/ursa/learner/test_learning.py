@@ -23,7 +23,8 @@ from ursa.replay import Replay
 from ursa.serial import EvalResult, SerialConfig, SerialLoop, evaluate_skills
 
 # Known gap (docs/NOTES.md): these learning thresholds are not yet reached by the current learner
-# in CI time on 2 shared cores (the eval suite measured 88 vs 4 cells at 600 updates, 6.5 min, but 2.7x-34x at shorter budgets).
+# in CI time on 2 shared cores (the eval suite measured 88 vs 4 cells at 600 updates, 6.5 min,
+# but only 2.7x-34x at shorter budgets).
 # They run on request: URSA_LEARNING_TESTS=1 make test
 _LEARNING = pytest.mark.skipif(
     os.environ.get("URSA_LEARNING_TESTS") != "1",
