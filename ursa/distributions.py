@@ -58,23 +58,41 @@ def two_hot_loss(logits: torch.Tensor, target: torch.Tensor, bins: torch.Tensor)
     return -(two_hot(target.detach(), bins) * F.log_softmax(logits, -1)).sum(-1)
 
 
+def two_hot_loss2(
+    logits: torch.Tensor,
+    target: torch.Tensor,
+    second: torch.Tensor,
+    weight: float,
+    bins: torch.Tensor,
+) -> torch.Tensor:
+    """``two_hot_loss(target) + weight · two_hot_loss(second)`` (...) with one log-softmax (the
+    cross-entropy is linear in the target code)."""
+    code = two_hot(target.detach(), bins) + weight * two_hot(second.detach(), bins)
+    return -(code * F.log_softmax(logits, -1)).sum(-1)
+
+
+def unimix_probs(logits: torch.Tensor, unimix: float) -> torch.Tensor:
+    """Probabilities (..., K) ``(1 − unimix) · softmax(logits) + unimix / K``."""
+    probs = torch.softmax(logits, -1)
+    if unimix <= 0.0:
+        return probs
+    return probs * (1.0 - unimix) + unimix / logits.shape[-1]
+
+
 def unimix_logits(logits: torch.Tensor, unimix: float) -> torch.Tensor:
-    """Log-probabilities (..., K) of ``(1 − unimix) · softmax(logits) + unimix / K``."""
+    """Log-probabilities (..., K) of :func:`unimix_probs`."""
     if unimix <= 0.0:
         return F.log_softmax(logits, -1)
-    probs = torch.softmax(logits, -1)
-    probs = (1.0 - unimix) * probs + unimix / logits.shape[-1]
-    return torch.log(probs)
+    return torch.log(unimix_probs(logits, unimix))
 
 
-def sample_onehot_st(logp: torch.Tensor, generator: torch.Generator | None = None) -> torch.Tensor:
-    """A one-hot sample (..., K) from log-probabilities (..., K) with straight-through
-    gradients (the sample's gradient is the probabilities')."""
-    probs = logp.exp()
+def sample_onehot_st(probs: torch.Tensor, generator: torch.Generator | None = None) -> torch.Tensor:
+    """A one-hot sample (..., K) from probabilities (..., K) with straight-through gradients
+    (the sample's gradient is the probabilities')."""
     u = torch.rand((*probs.shape[:-1], 1), generator=generator, device=probs.device)
-    idx = (probs.detach().cumsum(-1) < u).sum(-1, keepdim=True).clamp(max=probs.shape[-1] - 1)
+    idx = (probs.detach().cumsum(-1) < u).sum(-1, keepdim=True).clamp_(max=probs.shape[-1] - 1)
     onehot = torch.zeros_like(probs).scatter_(-1, idx, 1.0)
-    return onehot + probs - probs.detach()
+    return onehot + (probs - probs.detach())
 
 
 def categorical_kl(logp: torch.Tensor, logq: torch.Tensor) -> torch.Tensor:

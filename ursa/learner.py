@@ -47,7 +47,7 @@ from ursa.agent import (
     mahalanobis,
     whitened_sq,
 )
-from ursa.distributions import two_hot_loss, two_hot_mean
+from ursa.distributions import two_hot_loss2, two_hot_mean
 from ursa.learner_config import LearnerConfig
 from ursa.policy import pack_policy_weights
 from ursa.vae import VAE
@@ -266,7 +266,7 @@ class Learner:
                 dtype=torch.float32,
                 device=self.device,
             )
-            delta = float(skills.delta)
+            delta = c.delta_scale * float(skills.delta)
         else:
             skill = torch.zeros(n, 0, device=self.device)
             whiten = torch.zeros(0, 0, device=self.device)
@@ -291,9 +291,7 @@ class Learner:
         objective = ret_v / self.retnorm_v.scale()
         with torch.no_grad():
             slow_v = self.value_slow(fd, skd)
-        critic_loss = two_hot_loss(v_logits[:-1], ret_v.detach(), bins) + c.slow_critic_reg * (
-            two_hot_loss(v_logits[:-1], slow_v, bins)
-        )
+        critic_loss = two_hot_loss2(v_logits[:-1], ret_v, slow_v, c.slow_critic_reg, bins)
         weight = c.discount ** torch.arange(hor, device=self.device, dtype=torch.float32)
         weight = weight.unsqueeze(1)
         metrics["critic/value"] = (weight * critic_loss).mean().detach()
@@ -324,9 +322,7 @@ class Learner:
             sf_loss = whitened_sq(m_all[:-1] - ret_m.detach(), whiten) + (
                 c.slow_critic_reg * whitened_sq(m_all[:-1] - slow_m, whiten)
             )
-            cost_loss = two_hot_loss(c_logits[:-1], ret_c.detach(), bins) + c.slow_critic_reg * (
-                two_hot_loss(c_logits[:-1], slow_c, bins)
-            )
+            cost_loss = two_hot_loss2(c_logits[:-1], ret_c, slow_c, c.slow_critic_reg, bins)
             critic_loss = critic_loss + sf_loss + cost_loss
             # multipliers rise where their constraint is violated and fall where it holds
             viol1 = (dist.detach() > delta).float()

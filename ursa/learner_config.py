@@ -75,6 +75,10 @@ class LearnerConfig:
     """γ of V, ψ and C (paper §5.1)."""
     cost_discount: float = 0.0
     """γ of the cost critic C; 0 means ``discount``. See docs/learner.md (point-env tests)."""
+    delta_scale: float = 1.0
+    """The actor and λ1 enforce ‖(1−γ)ψ − z‖ ≤ ``delta_scale`` · δ. Below 1 it keeps a margin:
+    the reward term pulls the actor to the constraint's boundary, so model error and the
+    transit to a new skill land about half the executed skills outside δ when the margin is 0."""
     return_lambda: float = 0.95
     """λ of the TD(λ) returns."""
     slow_critic_fraction: float = 0.02
@@ -142,6 +146,8 @@ class LearnerConfig:
             raise ValueError("bins ≥ 2 and batch_size, seq_len, imag_horizon ≥ 1 are required")
         if not 0.0 < self.discount < 1.0 or not 0.0 <= self.cost_discount < 1.0:
             raise ValueError("discounts must lie in (0, 1)")
+        if not 0.0 < self.delta_scale <= 1.0:
+            raise ValueError("delta_scale must lie in (0, 1]")
 
     @property
     def gamma_cost(self) -> float:

@@ -30,7 +30,7 @@ from ursa.distributions import (
     symlog,
     two_hot_loss,
     two_hot_mean,
-    unimix_logits,
+    unimix_probs,
 )
 from ursa.learner_config import LearnerConfig
 from ursa.networks import MLP, GRUCell
@@ -56,30 +56,27 @@ class RSSM(nn.Module):
         """Size of the model state s = [h, z]."""
         return self.deter + self.stoch * self.classes
 
-    def _logp(self, logits: torch.Tensor) -> torch.Tensor:
-        return unimix_logits(logits.unflatten(-1, (self.stoch, self.classes)), self.unimix)
+    def prior_probs(self, h: torch.Tensor) -> torch.Tensor:
+        """(..., deter) -> prior probabilities (..., S, K) (with the uniform mix)."""
+        return unimix_probs(self.prior(h).unflatten(-1, (self.stoch, self.classes)), self.unimix)
 
-    def prior_logp(self, h: torch.Tensor) -> torch.Tensor:
-        """(..., deter) -> prior log-probabilities (..., S, K)."""
-        return self._logp(self.prior(h))
-
-    def post_logp(self, h: torch.Tensor, embed: torch.Tensor) -> torch.Tensor:
-        """(..., deter), (..., E) -> posterior log-probabilities (..., S, K)."""
-        return self._logp(self.post(torch.cat([h, embed], -1)))
+    def post_probs(self, h: torch.Tensor, embed: torch.Tensor) -> torch.Tensor:
+        """(..., deter), (..., E) -> posterior probabilities (..., S, K)."""
+        logits = self.post(torch.cat([h, embed], -1))
+        return unimix_probs(logits.unflatten(-1, (self.stoch, self.classes)), self.unimix)
 
     def initial(self, batch: int) -> tuple[torch.Tensor, torch.Tensor]:
         """Learned initial state: h (B, deter) = tanh(h0), z (B, S·K) = the prior's probs."""
         h = torch.tanh(self.h0).expand(batch, -1)
-        z = self.prior_logp(h).exp().flatten(-2)
-        return h, z
+        return h, self.prior_probs(h).flatten(-2)
 
     def core(self, h: torch.Tensor, z: torch.Tensor, action: torch.Tensor) -> torch.Tensor:
         """h_{t−1} (B, deter), z_{t−1} (B, S·K), action_t (B, A) -> h_t (B, deter)."""
         return self.gru(self.img_in(torch.cat([z, action], -1)), h)
 
-    def sample(self, logp: torch.Tensor, generator: torch.Generator | None) -> torch.Tensor:
-        """Straight-through one-hot sample (..., S·K) of log-probabilities (..., S, K)."""
-        return sample_onehot_st(logp, generator).flatten(-2)
+    def sample(self, probs: torch.Tensor, generator: torch.Generator | None) -> torch.Tensor:
+        """Straight-through one-hot sample (..., S·K) of probabilities (..., S, K)."""
+        return sample_onehot_st(probs, generator).flatten(-2)
 
     def observe(
         self,
@@ -91,8 +88,8 @@ class RSSM(nn.Module):
         """Filter a batch of sequences.
 
         embed (B, T, E), action (B, T, A), is_first (B, T) bool. The state is initialised at
-        t = 0 and wherever ``is_first``. Returns h (B, T, deter), z (B, T, S·K), post and prior
-        log-probabilities (B, T, S, K).
+        t = 0 and wherever ``is_first``. Returns h (B, T, deter), z (B, T, S·K) and the
+        posterior and prior log-probabilities ``post``, ``prior`` (B, T, S, K).
         """
         b, t_len = embed.shape[:2]
         h0, z0 = self.initial(b)
@@ -106,7 +103,7 @@ class RSSM(nn.Module):
                 h = m * h0 + (1.0 - m) * h
                 z = m * z0 + (1.0 - m) * z
             h = self.core(h, z, action[:, t])
-            post = self.post_logp(h, embed[:, t])
+            post = self.post_probs(h, embed[:, t])
             z = self.sample(post, generator)
             hs.append(h)
             zs.append(z)
@@ -115,8 +112,8 @@ class RSSM(nn.Module):
         return {
             "h": hh,
             "z": torch.stack(zs, 1),
-            "post": torch.stack(posts, 1),
-            "prior": self.prior_logp(hh),
+            "post": torch.log(torch.stack(posts, 1)),
+            "prior": torch.log(self.prior_probs(hh)),
         }
 
     def img_step(
@@ -128,7 +125,7 @@ class RSSM(nn.Module):
     ) -> tuple[torch.Tensor, torch.Tensor]:
         """One imagined step: (h, z, a) -> (h', z' ~ prior(h'))."""
         h = self.core(h, z, action)
-        return h, self.sample(self.prior_logp(h), generator)
+        return h, self.sample(self.prior_probs(h), generator)
 
     def obs_step(
         self,
@@ -142,7 +139,7 @@ class RSSM(nn.Module):
         """One filtering step: (h, z, a, embed) -> (h', z' ~ post(h', embed)); the posterior
         mode instead of a sample when ``sample`` is False."""
         h = self.core(h, z, action)
-        post = self.post_logp(h, embed)
+        post = self.post_probs(h, embed)
         if sample:
             return h, self.sample(post, generator)
         idx = post.argmax(-1, keepdim=True)

@@ -30,6 +30,10 @@ class PointConfig:
     """Standard deviation of the position noise added each step."""
     unsafe_radius: float = 0.35
     """Radius of the unsafe disc centred at the origin."""
+    cost_floor: float = -0.05
+    """Lowest cost of a safe state (cost = max(unsafe_radius − ‖p‖, cost_floor)). Bounded
+    below so that, in the discounted cost critic, time far from the disc cannot offset time
+    spent inside it (the A1's cost is bounded the same way)."""
     goal: tuple[float, float] = (0.8, 0.8)
     """Where the reward is highest."""
     action_penalty: float = 0.01
@@ -80,8 +84,9 @@ class PointEnv:
         r_goal = 1.0 - dist_goal / (2.0 * np.sqrt(2.0))
         r_action = -c.action_penalty * float(a @ a)
         reward = r_goal + r_action
-        cost = c.unsafe_radius - float(np.linalg.norm(self._pos))
-        safe = cost <= 0.0
+        signed = c.unsafe_radius - float(np.linalg.norm(self._pos))
+        cost = max(signed, c.cost_floor)
+        safe = signed <= 0.0
         info: dict[str, Any] = {
             "reward_terms": {"goal": r_goal, "action": r_action},
             "cost": cost,

@@ -161,7 +161,7 @@ def test_policy_weights_are_safetensors_and_match() -> None:
     a, carry2 = pol.act(carry, obs, np.array([0.2, 0.3]), explore=False)
     with torch.no_grad():
         h = learner.wm.rssm.core(carry.h, carry.z, carry.action)
-        post = learner.wm.rssm.post_logp(h, learner.wm.encoder(torch.as_tensor(obs)[None]))
+        post = learner.wm.rssm.post_probs(h, learner.wm.encoder(torch.as_tensor(obs)[None]))
         z = learner.wm.rssm.sample(post, torch.Generator().manual_seed(0))  # Policy(seed=0)
         want = learner.actor.mode(torch.cat([h, z], -1), torch.tensor([[0.2, 0.3]]))
     np.testing.assert_allclose(a, want[0].numpy(), rtol=1e-5, atol=1e-6)

@@ -19,8 +19,10 @@ from ursa.distributions import (
     tanh_normal_sample,
     two_hot,
     two_hot_loss,
+    two_hot_loss2,
     two_hot_mean,
     unimix_logits,
+    unimix_probs,
 )
 
 torch.set_num_threads(1)
@@ -72,6 +74,15 @@ def test_two_hot_round_trip_and_weights() -> None:
     logits = torch.log(c + 1e-12)
     torch.testing.assert_close(two_hot_mean(logits, big), x, rtol=1e-4, atol=1e-3)
     assert torch.all(two_hot_loss(logits, x, big) <= two_hot_loss(torch.zeros_like(logits), x, big))
+    # the fused two-target loss equals the sum of the two cross-entropies
+    y = x.flip(0)
+    rnd = torch.randn(7, 11, 255)
+    torch.testing.assert_close(
+        two_hot_loss2(rnd, x, y, 0.5, big),
+        two_hot_loss(rnd, x, big) + 0.5 * two_hot_loss(rnd, y, big),
+        rtol=1e-5,
+        atol=1e-4,
+    )
 
 
 def test_lambda_return_hand_worked() -> None:
@@ -127,7 +138,7 @@ def test_unimix_and_straight_through_sample() -> None:
     p = unimix_logits(logits, 0.01).exp()
     torch.testing.assert_close(p, torch.tensor([[[0.9925, 0.0025, 0.0025, 0.0025]]]))
     gen = torch.Generator().manual_seed(0)
-    lp = unimix_logits(torch.zeros(5000, 1, 4), 0.01).requires_grad_(True)
+    lp = unimix_probs(torch.zeros(5000, 1, 4), 0.01).requires_grad_(True)
     s = sample_onehot_st(lp, gen)
     assert torch.all(s.detach().sum(-1) == 1.0)
     freq = s.detach().mean(0).squeeze()
