@@ -1,11 +1,14 @@
 """What a collector runs: the world model's filter (encoder + RSSM posterior step) and the actor.
 
-CPU, torch inference mode, one observation at a time. The carry holds the RSSM state and the
-previous action; a reset-free collector keeps it forever (a fresh ``initial_carry`` only after a
-restart). Weights travel as safetensors bytes (never pickle): :func:`pack_policy_weights`
-writes them (the learner's ``policy_weights_bytes``), :meth:`Policy.load_weights_bytes` reads
-them. In ``ursa`` mode the bytes carry the published VAE encoder too, so that the collector
-computes φ (the features it commits to the repertoire) with the same encoder version.
+CPU, one observation at a time, in numpy (:mod:`ursa.policy_np`): the torch modules hold the
+weights (and validate loaded ones), and every load copies them into float32 arrays that
+:meth:`Policy.act` computes with, a few times faster than torch eager at batch 1. The carry holds
+the RSSM state and the previous action; a reset-free collector keeps it forever (a fresh
+``initial_carry`` only after a restart). Weights travel as safetensors bytes (never pickle):
+:func:`pack_policy_weights` writes them (the learner's ``policy_weights_bytes``),
+:meth:`Policy.load_weights_bytes` reads them. In ``ursa`` mode the bytes carry the published VAE
+encoder too, so that the collector computes φ (the features it commits to the repertoire) with
+the same encoder version.
 """
 
 from __future__ import annotations
@@ -20,6 +23,7 @@ from safetensors.torch import load as st_load
 from safetensors.torch import save as st_save
 from torch import nn
 
+from ursa import policy_np
 from ursa.agent import Actor
 from ursa.learner_config import LearnerConfig
 from ursa.vae import VAE
@@ -30,11 +34,12 @@ WEIGHTS_FORMAT = "ursa-policy-1"
 
 @dataclass(frozen=True)
 class PolicyCarry:
-    """RSSM state h (1, deter), z (1, S·K) and the previous action (1, A)."""
+    """RSSM state h (1, deter), z (1, S·K) and the previous action (1, A), float32 arrays
+    (never modified in place)."""
 
-    h: torch.Tensor
-    z: torch.Tensor
-    action: torch.Tensor
+    h: np.ndarray
+    z: np.ndarray
+    action: np.ndarray
 
 
 def pack_policy_weights(modules: dict[str, nn.Module], version: int, vae_version: int) -> bytes:
@@ -81,7 +86,10 @@ class Policy:
         """Version of the loaded weights (-1: initial weights)."""
         self.vae_version = 0
         self._rng = np.random.default_rng(seed)
-        self._gen = torch.Generator().manual_seed(seed)
+        self.latent_rng = np.random.default_rng([seed, 1])
+        """Draws the RSSM latents: ``random(S, dtype=np.float32)``, S uniforms per step."""
+        self.params = policy_np.policy_params(self.encoder, self.rssm, self.actor)
+        """The weights :meth:`act` computes with (copied at every load)."""
 
     def modules(self) -> dict[str, nn.Module]:
         """The modules whose weights travel, by name."""
@@ -120,14 +128,16 @@ class Policy:
                     raise ValueError(f"{name}.{k}: {tuple(got[k].shape)} != {tuple(v.shape)}")
         for name, mod in mods.items():
             mod.load_state_dict(parts[name], strict=True)
+        self.params = policy_np.policy_params(self.encoder, self.rssm, self.actor)
         self.version = int(meta.get("version", -1)) if version is None else int(version)
         self.vae_version = int(meta.get("vae_version", 0))
 
     def initial_carry(self) -> PolicyCarry:
         """The RSSM's learned initial state and a zero previous action."""
-        with torch.inference_mode():
-            h, z = self.rssm.initial(1)
-            return PolicyCarry(h.clone(), z.clone(), torch.zeros(1, self.act_dim))
+        p = self.params
+        return PolicyCarry(
+            p.h_init[None].copy(), p.z_init[None].copy(), np.zeros((1, self.act_dim), np.float32)
+        )
 
     def act(
         self,
@@ -140,28 +150,27 @@ class Policy:
         """Filter ``obs`` (obs_dim,) and choose an action (A,) in [−1, 1] for ``skill`` (D,).
 
         ``explore``: sample the action instead of taking tanh(mean); the RSSM latent is sampled
-        either way (DreamerV3; the actor was trained on samples). ``rng`` draws the action noise
-        (the policy's own generator when None). Returns the action and
-        the new carry (which remembers this action as the next step's previous action).
+        either way (DreamerV3; the actor was trained on samples), with :attr:`latent_rng`.
+        ``rng`` draws the action noise (the policy's own generator when None). Returns the
+        action and the new carry (which remembers this action as the next step's previous
+        action).
         """
-        with torch.inference_mode():
-            o = torch.as_tensor(np.asarray(obs, np.float32).reshape(1, self.obs_dim))
-            embed = self.encoder(o)
-            # latents are always sampled: the actor never saw a posterior mode in training
-            h, z = self.rssm.obs_step(carry.h, carry.z, carry.action, embed, self._gen)
-            feat = torch.cat([h, z], -1)
-            if self.skill_dim:
-                s = torch.as_tensor(np.asarray(skill, np.float32).reshape(1, self.skill_dim))
-            else:
-                s = torch.zeros(1, 0)
-            mean, std = self.actor(feat, s)
-            if explore:
-                eps = (rng or self._rng).standard_normal(self.act_dim).astype(np.float32)
-                u = mean + std * torch.as_tensor(eps)
-            else:
-                u = mean
-            a = torch.tanh(u)
-            return a[0].numpy().astype(np.float64), PolicyCarry(h, z, a)
+        p = self.params
+        o = np.asarray(obs, np.float32).reshape(self.obs_dim)
+        # latents are always sampled: the actor never saw a posterior mode in training
+        u = self.latent_rng.random(p.stoch, dtype=np.float32)
+        # single vectors (numpy's fast path); the carry keeps a leading batch axis of 1
+        h, z = policy_np.filter_step(carry.h[0], carry.z[0], carry.action[0], o, u, p)
+        if self.skill_dim:
+            s = np.asarray(skill, np.float32).reshape(self.skill_dim)
+        else:
+            s = np.zeros(0, np.float32)
+        mean, std = policy_np.actor_dist(h, z, s, p)
+        if explore:
+            eps = (rng or self._rng).standard_normal(self.act_dim).astype(np.float32)
+            mean = mean + std * eps
+        a = np.tanh(mean)
+        return a.astype(np.float64), PolicyCarry(h[None], z[None], a[None])
 
     def features(self, inputs: np.ndarray) -> np.ndarray:
         """φ (M, D) of feature inputs (M, F): the VAE encoder in ``ursa`` mode, the inputs

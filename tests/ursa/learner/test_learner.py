@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 import torch
 
+from tests.ursa.test_policy_numpy import TorchUniforms
 from ursa.envs.point import PointEnv
 from ursa.learner import Learner, SkillSnapshot
 from ursa.learner_config import LearnerConfig, learner_preset
@@ -155,16 +156,22 @@ def test_policy_weights_are_safetensors_and_match() -> None:
     assert pol.version == learner.updates == 3
     for k, v in learner.actor.state_dict().items():
         torch.testing.assert_close(pol.actor.state_dict()[k], v)
-    # the policy's deterministic action is the learner's actor at the filtered state
+    # the policy's deterministic action is the learner's actor at the filtered state, its
+    # latent the one the learner's RSSM samples with the same uniforms (the policy's own
+    # numpy generator draws them in use; torch's stand in here)
+    pol.latent_rng = TorchUniforms(0)  # type: ignore[assignment]
     carry = pol.initial_carry()
     obs = np.array([0.5, 0.5, 0, 0, 0, 0], np.float32)
     a, carry2 = pol.act(carry, obs, np.array([0.2, 0.3]), explore=False)
     with torch.no_grad():
-        h = learner.wm.rssm.core(carry.h, carry.z, carry.action)
+        h0, z0, a0 = (torch.as_tensor(x) for x in (carry.h, carry.z, carry.action))
+        h = learner.wm.rssm.core(h0, z0, a0)
         post = learner.wm.rssm.post_probs(h, learner.wm.encoder(torch.as_tensor(obs)[None]))
-        z = learner.wm.rssm.sample(post, torch.Generator().manual_seed(0))  # Policy(seed=0)
+        z = learner.wm.rssm.sample(post, torch.Generator().manual_seed(0))
         want = learner.actor.mode(torch.cat([h, z], -1), torch.tensor([[0.2, 0.3]]))
-    np.testing.assert_allclose(a, want[0].numpy(), rtol=1e-5, atol=1e-6)
+    np.testing.assert_allclose(a, want[0].numpy(), rtol=1e-5, atol=1e-5)
+    np.testing.assert_allclose(carry2.h, h.numpy(), rtol=1e-5, atol=1e-5)
+    np.testing.assert_array_equal(carry2.z, z.numpy())
     assert carry2.action.shape == (1, 2)
     with pytest.raises(ValueError):
         Policy(dataclasses.replace(cfg, units=16), 6, 2, 2).load_weights_bytes(b)
