@@ -69,6 +69,9 @@ class PolicyActing:
 
     def begin(self) -> None:
         self.carry = self.policy.initial_carry()
+        # the RSSM latents are sampled too: draw them from this evaluation's generator, so
+        # that an evaluation depends on its seed only, not on the evaluations before it
+        self.policy.latent_rng = np.random.default_rng(self.rng.integers(0, 2**63 - 1))
 
     def act(self, obs: np.ndarray, skill: np.ndarray) -> np.ndarray:
         action, self.carry = self.policy.act(self.carry, obs, skill, explore=self.explore,

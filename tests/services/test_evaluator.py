@@ -4,9 +4,7 @@ the point env reaches a repertoire skill within δ through ``POST /evaluate``.""
 
 from __future__ import annotations
 
-import os
 import threading
-import time
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
@@ -27,10 +25,14 @@ from services.evaluator.rollout import allowed_damages, mahalanobis, run_skill
 from services.evaluator.service import Evaluator, EvaluatorArgs
 from tests.services._stack import snapshot_msg
 from tests.stack import Stack, running_stack, wait_for
+from tests.trained import cli_args, point_config
 from ursa.config import Config, build_env, preset
 from ursa.envs.point import PointEnv
+from ursa.eval.loading import read_checkpoint
+from ursa.learner import Learner
 from ursa.policy import Policy, pack_policy_weights
-from ursa.serial import SerialConfig, SerialLoop, evaluate_skills
+from ursa.repertoire import Repertoire
+from ursa.serial import evaluate_skills
 
 RUN = "test"
 torch.set_num_threads(1)
@@ -161,50 +163,21 @@ def test_evaluator_serves_queries_and_loads_the_learners_weights(
 
 
 # ---- a trained policy, end to end ------------------------------------------------------------
-TRAIN_STEPS = int(os.environ.get("URSA_EVAL_TRAIN_STEPS", "20000"))
-"""Env steps of the point-env training (about 15 min on two quiet cores; the learner core's own
-tests have no trained-policy fixture yet)."""
-TRAINED_DIR = os.environ.get("URSA_TRAINED_POINT_DIR", "")
-"""If set: load ``weights.safetensors`` + ``repertoire.npz`` from there (training and saving
-them there first if they are missing), so the slow test can reuse one training."""
-
-
 @pytest.fixture(scope="module")
-def trained_point() -> dict[str, Any]:
-    """A point-env policy trained with the ``tiny`` preset by ``ursa.serial.SerialLoop``: its
-    weights (as the learner publishes them) and its repertoire (skills, ids, ages, NN
-    distances, Σ, δ)."""
-    cfg = preset("tiny", "point")
-    cache = Path(TRAINED_DIR) if TRAINED_DIR else None
-    if cache is None and "URSA_EVAL_TRAIN_STEPS" not in os.environ:
-        # Known gap (docs/RESULTS.md): on the shared 2-core CI machine the point-env training
-        # takes 15-27 min and the current learner does not yet reach δ reliably, so CI does not
-        # train here. Set URSA_TRAINED_POINT_DIR (a cached policy) or URSA_EVAL_TRAIN_STEPS.
-        pytest.skip("needs a trained point policy: set URSA_TRAINED_POINT_DIR or "
-                    "URSA_EVAL_TRAIN_STEPS (training takes 15-27 min on 2 cores)")
-    if cache is not None and (cache / "weights.safetensors").exists():
-        data = dict(np.load(cache / "repertoire.npz"))
-        return {"cfg": cfg, "weights": (cache / "weights.safetensors").read_bytes(),
-                "updates": int(data.pop("updates")), "train_s": 0.0, **data}
-    loop = SerialLoop(build_env(cfg, seed=0), cfg.learner, SerialConfig(
-        feature="position", prefill=2000, skill_period=cfg.collector.skill_period,
-        chunk_len=cfg.collector.chunk_len, repertoire_size=cfg.repertoire.size,
-        n_z=cfg.repertoire.n_z, seed=0))
-    t0 = time.perf_counter()
-    loop.run(TRAIN_STEPS)
-    rep = loop.repertoire
-    assert rep is not None
-    data = {"skills": np.asarray(rep.skills), "ids": np.asarray(rep.ids),
-            "ages": np.asarray(rep.ages), "nn": np.asarray(rep.nn_dist),
-            "cov": np.asarray(rep.cov), "delta": np.float64(rep.delta()),
-            "updates": np.int64(loop.learner.updates)}
-    weights = loop.learner.policy_weights_bytes()
-    if cache is not None:
-        cache.mkdir(parents=True, exist_ok=True)
-        np.savez(cache / "repertoire.npz", **data)
-        (cache / "weights.safetensors").write_bytes(weights)
-    return {"cfg": cfg, "weights": weights, "updates": int(data.pop("updates")),
-            "train_s": time.perf_counter() - t0, **data}
+def trained_point(point_runs: dict[str, Any]) -> dict[str, Any]:
+    """The session's trained point-env URSA run (tests/trained.py): its weights as the learner
+    publishes them and its repertoire (skills, ids, ages, NN distances, Σ, δ)."""
+    run_dir: Path = point_runs["runs"]["ursa"]
+    cfg = point_config("ursa-supervised")
+    state = read_checkpoint(run_dir / "checkpoints" / "learner.pt")
+    learner = Learner(cfg.learner, PointEnv.obs_dim, PointEnv.act_dim, 2)
+    learner.load_state_dict(state)
+    rep = Repertoire.load(run_dir / "repertoire" / "archive.npz")
+    return {"cfg": cfg, "weights": learner.policy_weights_bytes(), "updates": learner.updates,
+            "train_s": point_runs["seconds"]["ursa"], "skills": np.asarray(rep.skills),
+            "ids": np.asarray(rep.ids), "ages": np.asarray(rep.ages),
+            "nn": np.asarray(rep.nn_dist), "cov": np.asarray(rep.cov),
+            "delta": np.float64(rep.delta()), "n_z": rep.config.n_z}
 
 
 def _snapshot_of(tp: dict[str, Any]) -> pb.RepertoireSnapshot:
@@ -215,7 +188,7 @@ def _snapshot_of(tp: dict[str, Any]) -> pb.RepertoireSnapshot:
         ages=codec.to_array(tp["ages"].astype(np.int64)),
         nn_dist=codec.to_array(tp["nn"].astype(np.float32)),
         cov=codec.to_array(tp["cov"].astype(np.float64)), delta=float(tp["delta"]),
-        capacity=len(tp["skills"]), n_z=100)
+        capacity=len(tp["skills"]), n_z=int(tp["n_z"]))
 
 
 @pytest.mark.slow
@@ -252,7 +225,8 @@ def test_evaluate_trained_point_policy_reaches_a_repertoire_skill(
 
     with running_stack(tmp_path, run_id=RUN) as st:
         st.start_router()
-        ev = st.start("eval", "services.evaluator", "--collector-id", "eval")
+        ev = st.start("eval", "services.evaluator", "--collector-id", "eval",
+                      *cli_args("ursa-supervised")[4:])
         peer = st.session()
         t = st.topics
         weights = codec.encode(pb.PolicyWeights(

@@ -34,6 +34,10 @@ class PointConfig:
     """Lowest cost of a safe state (cost = max(unsafe_radius − ‖p‖, cost_floor)). Bounded
     below so that, in the discounted cost critic, time far from the disc cannot offset time
     spent inside it (the A1's cost is bounded the same way)."""
+    cost_jump: float = 0.1
+    """Cost added inside the disc (cost = unsafe_radius − ‖p‖ + cost_jump there), so that
+    hovering on the disc's edge, half the steps in and half out, has a positive discounted
+    cost; safe ⇔ cost ≤ 0 still holds."""
     goal: tuple[float, float] = (0.8, 0.8)
     """Where the reward is highest."""
     action_penalty: float = 0.01
@@ -85,8 +89,8 @@ class PointEnv:
         r_action = -c.action_penalty * float(a @ a)
         reward = r_goal + r_action
         signed = c.unsafe_radius - float(np.linalg.norm(self._pos))
-        cost = max(signed, c.cost_floor)
         safe = signed <= 0.0
+        cost = max(signed, c.cost_floor) if safe else signed + c.cost_jump
         info: dict[str, Any] = {
             "reward_terms": {"goal": r_goal, "action": r_action},
             "cost": cost,

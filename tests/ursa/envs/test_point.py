@@ -56,8 +56,8 @@ def test_reward_hand_worked() -> None:
 @pytest.mark.parametrize(
     ("pos", "cost", "safe"),
     [
-        ((0.0, 0.1), 0.25, False),  # inside the disc: the signed distance, positive
-        ((0.0, 0.33), 0.02, False),
+        ((0.0, 0.1), 0.35, False),  # inside the disc: the signed distance + the jump 0.1
+        ((0.0, 0.33), 0.12, False),
         ((0.0, 0.37), -0.02, True),  # just outside: the signed distance, negative
         ((0.0, 0.9), -0.05, True),  # far away: the floor
     ],
@@ -71,10 +71,13 @@ def test_cost_and_safety(pos: tuple[float, float], cost: float, safe: bool) -> N
     np.testing.assert_array_equal(info["features"]["position"], np.float32(pos))
 
 
-def test_cost_floor_is_configurable() -> None:
+def test_cost_floor_and_jump_are_configurable() -> None:
     env = _at((0.0, 0.9), dataclasses.replace(QUIET, cost_floor=-1.0))
     _, _, _, _, info = env.step(np.zeros(2))
     assert info["cost"] == pytest.approx(0.35 - 0.9)
+    env = _at((0.0, 0.3), dataclasses.replace(QUIET, cost_jump=0.0))
+    _, _, _, _, info = env.step(np.zeros(2))
+    assert info["cost"] == pytest.approx(0.05)
 
 
 def test_reset_free_and_safe_start() -> None:

@@ -38,18 +38,3 @@ def make_run(root: Path, name: str, cfg: Config, steps: int, prefill: int) -> Pa
     rec = SerialRecorder(loop)
     loop.run(steps, callback=rec, callback_every=max(steps // 8, 1))
     return save_serial_run(loop, cfg, root / name, rec)
-
-
-def train_point(
-    args: tuple[str, str, str, dict[str, object], int, int, dict[str, int], int],
-) -> str:
-    """Train a point-env run (in a worker process): (root, name, mode, learner overrides, env
-    steps, prefill, repertoire overrides, skill period) -> run dir."""
-    root, name, mode, overrides, steps, prefill, repertoire, period = args
-    torch.set_num_threads(1)
-    cfg = preset("tiny", "point")
-    lc = dataclasses.replace(cfg.learner, mode=mode, **overrides)  # type: ignore[arg-type]
-    cfg = dataclasses.replace(
-        cfg, learner=lc, repertoire=dataclasses.replace(cfg.repertoire, **repertoire),
-        collector=dataclasses.replace(cfg.collector, skill_period=period))
-    return str(make_run(Path(root), name, cfg, steps, prefill))
