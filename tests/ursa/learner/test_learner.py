@@ -109,6 +109,26 @@ def test_train_step_every_mode(mode: str) -> None:
         assert "vae/loss" in m
 
 
+def test_delta_scale_tightens_the_skill_constraint() -> None:
+    """λ1's labels and the actor's distance term use delta_scale · δ: with the same batch and
+    seed, only the threshold differs, so fewer imagined states count as within it."""
+    replay = _random_replay()
+    snap = _snapshot(np.random.default_rng(0).uniform(-1, 1, size=(300, 2)))
+    batch = replay.sample(MICRO.batch_size, MICRO.seq_len, np.random.default_rng(0))
+    out = {}
+    for scale in (1.0, 0.25):
+        # γ 0.5: the imagined (1−γ)ψ follows the predicted φ, so distances spread around δ
+        cfg = dataclasses.replace(MICRO, mode="ursa-supervised", discount=0.5, delta_scale=scale)
+        learner = Learner(cfg, 6, 2, 2)
+        out[scale] = learner.train_step(batch, snap)
+    assert out[0.25]["delta"] == pytest.approx(0.25 * snap.delta)
+    assert out[1.0]["delta"] == pytest.approx(snap.delta)
+    assert out[0.25]["imag/distance"] == pytest.approx(out[1.0]["imag/distance"], rel=1e-5)
+    assert out[0.25]["imag/within_delta"] < out[1.0]["imag/within_delta"]
+    with pytest.raises(ValueError, match="delta_scale"):
+        dataclasses.replace(MICRO, delta_scale=0.0)
+
+
 def test_vae_encoder_reencodes_repertoire() -> None:
     cfg = dataclasses.replace(MICRO, mode="ursa", vae_publish_every=1000)
     learner = Learner(cfg, 6, 2, 4)
