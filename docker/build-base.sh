@@ -17,7 +17,13 @@ if [ "$FORCE" != 1 ] && docker image inspect "$TAG" >/dev/null 2>&1; then
   exit 0
 fi
 command -v mmdebstrap >/dev/null 2>&1 || {
-  echo "mmdebstrap is missing: apt-get install mmdebstrap" >&2; exit 1; }
+  if [ "$(id -u)" = 0 ] && command -v apt-get >/dev/null 2>&1; then
+    echo "installing mmdebstrap (apt-get)"
+    (apt-get update -qq || true)
+    DEBIAN_FRONTEND=noninteractive apt-get install -y -qq mmdebstrap >/dev/null
+  else
+    echo "mmdebstrap is missing: apt-get install mmdebstrap" >&2; exit 1
+  fi; }
 
 # python3 + venv + certificates, and the few shared libraries manylinux wheels expect from the
 # system (libgomp1, libquadmath0: torch, numpy/scipy); no docs, man pages or apt lists.

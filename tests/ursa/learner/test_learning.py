@@ -61,10 +61,11 @@ def _learner(run_dir: Path | None) -> Learner:
     return learner
 
 
-@pytest.fixture(scope="module")
-def ursa_run(point_runs: dict[str, Any]) -> dict[str, Any]:
+def assess(run_dir: Path, label: str) -> dict[str, Any]:
+    """Evaluate a trained point-env URSA run directory the way these tests judge it: held-out
+    prediction loss before and after, and K KDE skills executed in the real env by the trained
+    policy and by random actions."""
     torch.set_num_threads(1)
-    run_dir: Path = point_runs["runs"]["ursa"]
     run = load_run(run_dir)
     assert run.config.learner == point_config("ursa-supervised").learner
     learner = _learner(run_dir)
@@ -87,13 +88,18 @@ def ursa_run(point_runs: dict[str, Any]) -> dict[str, Any]:
         "random": rnd,
     }
     print(
-        f"\nURSA run: {learner.updates} updates, {point_runs['seconds']} s; δ = {delta:.3f}; "
-        f"within δ: ursa {res.within(delta).mean():.3f}, random {rnd.within(delta).mean():.3f}; "
-        f"violations: ursa {res.violation_rate.mean():.4f}, random "
-        f"{rnd.violation_rate.mean():.4f}; prediction loss {_prediction_loss(initial):.3f} -> "
-        f"{_prediction_loss(final):.3f}"
+        f"\n{label}: {learner.updates} updates; δ = {delta:.3f}; within δ: ursa "
+        f"{res.within(delta).mean():.3f}, random {rnd.within(delta).mean():.3f}; violations: "
+        f"ursa {res.violation_rate.mean():.4f}, random {rnd.violation_rate.mean():.4f}; "
+        f"prediction loss {_prediction_loss(initial):.3f} -> {_prediction_loss(final):.3f}"
     )
     return out
+
+
+@pytest.fixture(scope="module")
+def ursa_run(point_runs: dict[str, Any]) -> dict[str, Any]:
+    secs = point_runs["seconds"]
+    return assess(point_runs["runs"]["ursa"], f"URSA serial run ({secs} s)")
 
 
 @pytest.fixture(scope="module")
