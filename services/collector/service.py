@@ -92,6 +92,8 @@ class Collector:
         self.backlog = {"chunks": deque[bytes](maxlen=args.backlog_chunks),
                         "features": deque[bytes](maxlen=args.backlog_chunks)}
         self.backlog_dropped = 0
+        self.nonfinite_actions = 0
+        """Policy actions with a NaN or inf entry (sanitised before the env and the replay)."""
         self._weights_lock = threading.Lock()
         self._pending_weights: pb.PolicyWeights | None = None
         self._pending_skill: np.ndarray | None = None
@@ -196,6 +198,10 @@ class Collector:
             return self.rng.uniform(-1.0, 1.0, size=self.env.act_dim).astype(np.float32)
         action, self.carry = self.policy.act(self.carry, obs, self.skill, explore=explore,
                                              rng=self.rng)
+        if not np.all(np.isfinite(action)):
+            # a diverged policy must not reach the never-reset env nor the learner's replay
+            self.nonfinite_actions += 1
+            action = np.nan_to_num(action, nan=0.0, posinf=1.0, neginf=-1.0)
         return action.astype(np.float32)
 
     def run(self) -> None:
@@ -324,6 +330,7 @@ class Collector:
                 "incarnation": self.incarnation,
                 "backlog_chunks": len(self.backlog["chunks"]),
                 "backlog_dropped": self.backlog_dropped,
+                "nonfinite_actions": self.nonfinite_actions,
             },
             labels={"env": self.cfg.env, "task": self.task, "damage": self.damage or "none",
                     "skill_source": self.skill_source},

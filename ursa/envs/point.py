@@ -75,7 +75,8 @@ class PointEnv:
 
     def step(self, action: np.ndarray) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
         c = self.config
-        a = np.clip(np.asarray(action, dtype=np.float64).reshape(2), -1.0, 1.0)
+        # NaN becomes 0 (as on the A1): one NaN would corrupt a state that is never reset
+        a = np.clip(np.nan_to_num(np.asarray(action, dtype=np.float64).reshape(2)), -1.0, 1.0)
         self._vel = c.inertia * self._vel + (1.0 - c.inertia) * c.max_speed * a
         pos = self._pos + self._vel + self._rng.normal(0.0, c.noise_std, size=2)
         clipped = np.clip(pos, -1.0, 1.0)

@@ -41,6 +41,13 @@ def test_actions_are_clipped() -> None:
     np.testing.assert_allclose(obs[4:], [1.0, -1.0])
 
 
+def test_non_finite_actions_do_not_corrupt_the_state() -> None:
+    env = _at((0.5, 0.5))
+    obs, r, _, _, info = env.step(np.array([np.nan, np.inf]))
+    assert np.all(np.isfinite(obs)) and np.isfinite(r) and np.isfinite(info["cost"])
+    np.testing.assert_allclose(obs[4:], [0.0, 1.0])
+
+
 def test_reward_hand_worked() -> None:
     env = _at((0.8, 0.8))
     _, r, *_ = env.step(np.zeros(2))
