@@ -54,6 +54,10 @@ class LearnerArgs:
     """Id of this learner in its liveliness token."""
     stats_hz: float = 2.0
     """How often metrics are published."""
+    stream_stats_s: float = 600.0
+    """Per-collector counters (``chunks/<id>`` …) are published for collectors heard from in
+    this many seconds; totals cover every collector ever seen. Keeps the stats bounded when
+    collectors come and go (compose re-creates them under new ids)."""
     segment_chunks: int = 2000
     """Chunks per MCAP replay segment before rotating to a new file."""
     replay_capacity: int = 2_000_000
@@ -307,7 +311,8 @@ class LearnerService:
         for k, v in self.metrics.items():
             if np.isfinite(v):
                 scalars[k] = float(v)
-        for cid, st in self.ledger.streams.items():
+        scalars.update(self.ledger.totals())
+        for cid, st in self.ledger.recent(self.args.stream_stats_s).items():
             scalars[f"chunks/{cid}"] = st.chunks
             scalars[f"gaps/{cid}"] = st.gaps
             scalars[f"missing/{cid}"] = st.missing_chunks
