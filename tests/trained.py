@@ -23,6 +23,7 @@ from typing import Any
 
 from ursa.config import Config, preset
 from ursa.learner_config import LearnerConfig, Mode
+from ursa.plain import to_plain
 
 POINT = LearnerConfig.tiny(
     mode="ursa-supervised",
@@ -67,15 +68,12 @@ def point_config(mode: Mode) -> Config:
 
 def recipe() -> dict[str, Any]:
     """Everything that decides what the runs learn (compared with a cache's ``recipe.json``)."""
+    modes: tuple[Mode, ...] = ("ursa-supervised", "daydreamer")
     return {
-        "learner": dataclasses.asdict(POINT),
+        "config": {m: to_plain(point_config(m)) for m in modes},
         "prefill": PREFILL,
-        "skill_period": SKILL_PERIOD,
-        "repertoire_size": REPERTOIRE_SIZE,
-        "n_z": N_Z,
         "env_steps": ENV_STEPS,
         "seed": SEED,
-        "config": {m: repr(point_config(m)) for m in ("ursa-supervised", "daydreamer")},
     }
 
 

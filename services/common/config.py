@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import dataclasses
 import hashlib
 import json
 import os
@@ -12,6 +11,8 @@ from pathlib import Path
 from typing import Any
 
 import yaml
+
+from ursa.plain import to_plain
 
 
 @dataclass(frozen=True)
@@ -39,19 +40,6 @@ class RunConfig:
     def dir(self) -> Path:
         """The run directory ``<root>/<run_id>``."""
         return self.root / self.run_id
-
-
-def to_plain(obj: Any) -> Any:
-    """Dataclass tree -> plain dict/list/scalars (for YAML and hashing)."""
-    if dataclasses.is_dataclass(obj) and not isinstance(obj, type):
-        return {f.name: to_plain(getattr(obj, f.name)) for f in dataclasses.fields(obj)}
-    if isinstance(obj, dict):
-        return {str(k): to_plain(v) for k, v in obj.items()}
-    if isinstance(obj, list | tuple):
-        return [to_plain(v) for v in obj]
-    if isinstance(obj, Path):
-        return str(obj)
-    return obj
 
 
 def config_hash(obj: Any) -> str:

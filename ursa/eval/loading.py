@@ -40,6 +40,7 @@ from ursa.config import PROVIDED_FEATURES, Config, build_env, with_feature
 from ursa.envs.base import ResetFreeEnv
 from ursa.learner import Learner
 from ursa.learner_config import LearnerConfig
+from ursa.plain import to_plain
 from ursa.policy import Policy
 from ursa.repertoire import Repertoire
 from ursa.serial import SerialConfig, SerialLoop
@@ -51,21 +52,6 @@ CONFIG_PREFERENCE = ("learner", "serial", "repertoire", "evaluator", "collector"
 
 
 # --- dataclasses <-> plain trees -------------------------------------------------------------
-
-
-def to_plain(obj: Any) -> Any:
-    """Dataclass tree -> plain dicts, lists and scalars (what the services write as YAML)."""
-    if dataclasses.is_dataclass(obj) and not isinstance(obj, type):
-        return {f.name: to_plain(getattr(obj, f.name)) for f in dataclasses.fields(obj)}
-    if isinstance(obj, dict):
-        return {str(k): to_plain(v) for k, v in obj.items()}
-    if isinstance(obj, list | tuple):
-        return [to_plain(v) for v in obj]
-    if isinstance(obj, Path):
-        return str(obj)
-    if isinstance(obj, np.generic):
-        return obj.item()
-    return obj
 
 
 def from_plain(cls: type[Any], data: Any) -> Any:
