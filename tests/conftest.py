@@ -8,6 +8,9 @@ from typing import Any
 
 import pytest
 
+# URSA_STRICT=1 (CI): a skip fails
+pytest_plugins = ["tests.strict", "pytester"]
+
 
 @pytest.fixture(scope="session")
 def point_runs(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Any]:

@@ -1,5 +1,8 @@
 """The HTTP API: every route with good and bad input on a fed state, a schemathesis run against
-the OpenAPI spec, and the app over a real Zenoh router on loopback."""
+the OpenAPI spec, and the app over a real Zenoh router on loopback.
+
+schemathesis is a pinned dev dependency, imported at the top: a missing package or an entry
+point renamed by an upgrade fails the module loudly, never turns into a skip."""
 
 from __future__ import annotations
 
@@ -11,8 +14,10 @@ from typing import Any
 
 import numpy as np
 import pytest
+import schemathesis
 from fastapi.testclient import TestClient
 from hypothesis import HealthCheck, settings
+from schemathesis.specs.openapi.checks import positive_data_acceptance
 
 from proto import codec
 from proto import ursa_pb2 as pb
@@ -352,11 +357,6 @@ def _schemathesis_app() -> Any:
     return create_app(state)
 
 
-try:
-    import schemathesis
-    from schemathesis.specs.openapi.checks import positive_data_acceptance
-except ImportError:  # a dev dependency; the route tests above do not need it
-    schemathesis = None  # type: ignore[assignment]
 
 
 def _no_500(ctx: Any, response: Any, case: Any) -> bool:
@@ -365,22 +365,19 @@ def _no_500(ctx: Any, response: Any, case: Any) -> bool:
     return True
 
 
-if schemathesis is not None:
-    SCHEMA = schemathesis.openapi.from_asgi("/openapi.json", _schemathesis_app())
+SCHEMA = schemathesis.openapi.from_asgi("/openapi.json", _schemathesis_app())
 
-    @SCHEMA.parametrize()
-    @settings(max_examples=40, deadline=None, derandomize=True,
-              suppress_health_check=list(HealthCheck))
-    def test_openapi_property_based_no_server_errors(case: Any) -> None:
-        """schemathesis's checks (status codes and bodies as documented, no 5xx, invalid
-        input rejected) and ours (never a 500), except "schema-valid data is accepted": a
-        skill of the wrong dimension or an unknown damage is valid JSON Schema but a 422 by
-        design (the dimension comes from the live snapshot, not from the spec)."""
-        case.call_and_validate(excluded_checks=[positive_data_acceptance],
-                               additional_checks=[_no_500])
-else:
-    def test_openapi_property_based_no_server_errors() -> None:
-        pytest.skip("schemathesis is not installed (pip install -e '.[dev]')")
+
+@SCHEMA.parametrize()
+@settings(max_examples=40, deadline=None, derandomize=True,
+          suppress_health_check=list(HealthCheck))
+def test_openapi_property_based_no_server_errors(case: Any) -> None:
+    """schemathesis's checks (status codes and bodies as documented, no 5xx, invalid
+    input rejected) and ours (never a 500), except "schema-valid data is accepted": a
+    skill of the wrong dimension or an unknown damage is valid JSON Schema but a 422 by
+    design (the dimension comes from the live snapshot, not from the spec)."""
+    case.call_and_validate(excluded_checks=[positive_data_acceptance],
+                           additional_checks=[_no_500])
 
 
 # ---- over a real router ----------------------------------------------------------------------
