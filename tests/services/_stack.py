@@ -1,32 +1,24 @@
 """Helpers of the dashboard, API and evaluator tests: fake bus data and a headless browser.
 
-``Browser`` drives Debian's chromium over the Chrome DevTools Protocol with the ``websockets``
-package viser already depends on (no Playwright or Selenium; nothing is downloaded).
+:func:`headless_chromium` drives Debian's chromium (``apt-get install chromium``, ``make
+system-deps``) through Playwright, launched from its executable path: Playwright never downloads
+a browser here.
 """
 
 from __future__ import annotations
 
-import base64
-import contextlib
-import itertools
-import json
 import os
 import shutil
-import subprocess
-import tempfile
-import time
-from pathlib import Path
-from typing import Any
+from collections.abc import Iterator
+from contextlib import contextmanager
 
-import httpx
 import numpy as np
-from websockets.sync.client import ClientConnection, connect
+from playwright.sync_api import Browser, sync_playwright
 
 from proto import codec
 from proto import ursa_pb2 as pb
-from tests.stack import free_port
 
-CHROMIUM_FLAGS = ("--headless=new", "--enable-unsafe-swiftshader", "--no-sandbox",
+CHROMIUM_FLAGS = ("--enable-unsafe-swiftshader", "--no-sandbox",
                   "--use-angle=swiftshader", "--disable-gpu-sandbox", "--disable-dev-shm-usage",
                   "--no-first-run", "--no-default-browser-check", "--mute-audio",
                   "--window-size=1600,1000", "--disable-background-timer-throttling",
@@ -34,11 +26,8 @@ CHROMIUM_FLAGS = ("--headless=new", "--enable-unsafe-swiftshader", "--no-sandbox
 
 
 def find_chromium() -> str | None:
-    for name in (os.environ.get("URSA_CHROMIUM", ""), "chromium", "chromium-browser",
-                 "google-chrome", "google-chrome-stable"):
-        if name and (path := shutil.which(name)):
-            return path
-    return None
+    """Debian's chromium (``URSA_CHROMIUM`` names another executable); None when absent."""
+    return shutil.which(os.environ.get("URSA_CHROMIUM") or "chromium")
 
 
 def snapshot_msg(n: int = 50, d: int = 2, version: int = 1, run_id: str = "test",
@@ -72,101 +61,13 @@ def stats_msg(service: str, sid: str, scalars: dict[str, float], run_id: str = "
     return msg
 
 
-class Browser:
-    """A headless chromium with one CDP connection per page; a context manager."""
-
-    def __init__(self, executable: str, log_dir: Path) -> None:
-        self.port = free_port()
-        self.profile = tempfile.mkdtemp(prefix="ursa-chromium-")
-        self.log = open(log_dir / "chromium.log", "ab")  # noqa: SIM115 - closed in close()
-        self.proc = subprocess.Popen(
-            [executable, *CHROMIUM_FLAGS, f"--remote-debugging-port={self.port}",
-             f"--user-data-dir={self.profile}", "about:blank"],
-            stdout=self.log, stderr=subprocess.STDOUT, start_new_session=True)
-        self._ids = itertools.count(1)
-        self.pages: list[ClientConnection] = []
-        deadline = time.monotonic() + 30.0
-        while True:
-            try:
-                httpx.get(f"http://127.0.0.1:{self.port}/json/version", timeout=1.0)
-                break
-            except httpx.HTTPError:
-                if time.monotonic() > deadline or self.proc.poll() is not None:
-                    self.close()
-                    raise RuntimeError("chromium did not open its DevTools port") from None
-                time.sleep(0.2)
-
-    def new_page(self, url: str) -> ClientConnection:
-        """Open ``url`` in a new tab; returns the tab's CDP connection."""
-        r = httpx.put(f"http://127.0.0.1:{self.port}/json/new?{url}", timeout=10.0)
-        ws = connect(r.json()["webSocketDebuggerUrl"], max_size=64 * 1024 * 1024)
-        self.pages.append(ws)
-        self.call(ws, "Page.enable")
-        return ws
-
-    def call(self, ws: ClientConnection, method: str, **params: Any) -> dict[str, Any]:
-        """Send one CDP command and return its result (events in between are skipped)."""
-        cid = next(self._ids)
-        ws.send(json.dumps({"id": cid, "method": method, "params": params}))
-        while True:
-            msg = json.loads(ws.recv(timeout=60.0))
-            if msg.get("id") == cid:
-                if "error" in msg:
-                    raise RuntimeError(f"{method}: {msg['error']}")
-                return dict(msg.get("result", {}))
-
-    def eval(self, ws: ClientConnection, expr: str) -> Any:
-        res = self.call(ws, "Runtime.evaluate", expression=expr, returnByValue=True)
-        return res.get("result", {}).get("value")
-
-    def text(self, ws: ClientConnection) -> str:
-        return str(self.eval(ws, "document.body ? document.body.innerText : ''") or "")
-
-    def click_text(self, ws: ClientConnection, text: str, selector: str = "[role=tab]") -> bool:
-        """Click (real mouse events) the first ``selector`` element whose text is ``text``."""
-        rect = self.eval(ws, f"""(() => {{
-            const e = Array.from(document.querySelectorAll({json.dumps(selector)}))
-                .find(x => x.innerText.trim() === {json.dumps(text)});
-            if (!e) return null;
-            const r = e.getBoundingClientRect();
-            return [r.x + r.width / 2, r.y + r.height / 2];
-        }})()""")
-        if not rect:
-            return False
-        x, y = float(rect[0]), float(rect[1])
-        self.call(ws, "Page.bringToFront")
-        self.call(ws, "Input.dispatchMouseEvent", type="mouseMoved", x=x, y=y)
-        for kind in ("mousePressed", "mouseReleased"):
-            self.call(ws, "Input.dispatchMouseEvent", type=kind, x=x, y=y, button="left",
-                      clickCount=1)
-        return True
-
-    def screenshot(self, ws: ClientConnection, path: Path) -> int:
-        self.call(ws, "Page.bringToFront")
-        data = self.call(ws, "Page.captureScreenshot", format="png")["data"]
-        path.parent.mkdir(parents=True, exist_ok=True)
-        raw = base64.b64decode(data)
-        path.write_bytes(raw)
-        return len(raw)
-
-    def close(self) -> None:
-        for ws in self.pages:
-            with contextlib.suppress(Exception):
-                ws.close()
-        if self.proc.poll() is None:
-            with contextlib.suppress(ProcessLookupError):
-                os.killpg(self.proc.pid, 15)
-            try:
-                self.proc.wait(timeout=10)
-            except subprocess.TimeoutExpired:
-                with contextlib.suppress(ProcessLookupError):
-                    os.killpg(self.proc.pid, 9)
-                self.proc.wait(timeout=5)
-        self.log.close()
-        shutil.rmtree(self.profile, ignore_errors=True)
-
-    def __enter__(self) -> Browser:
-        return self
-
-    def __exit__(self, *exc: Any) -> None:
-        self.close()
+@contextmanager
+def headless_chromium(executable: str) -> Iterator[Browser]:
+    """A headless chromium driven by Playwright (software WebGL for viser's 3-D canvas)."""
+    with sync_playwright() as pw:
+        browser = pw.chromium.launch(executable_path=executable, headless=True,
+                                     args=list(CHROMIUM_FLAGS))
+        try:
+            yield browser
+        finally:
+            browser.close()
