@@ -16,7 +16,10 @@ import sys
 import threading
 import time
 from dataclasses import dataclass
+from pathlib import Path
 from typing import IO, Literal
+
+from services.common.metrics import tensorboard_command
 
 _COLORS = ["36", "33", "35", "32", "34", "31", "96", "93", "95", "92"]
 
@@ -44,6 +47,10 @@ class UpArgs:
     """Also start an evaluation collector (serves ``POST /evaluate``; feeds no replay)."""
     dashboard: bool = True
     api: bool = True
+    wandb: bool = False
+    """Also log every service's stats to Weights & Biases (needs the wandb extra)."""
+    wandb_mode: Literal["offline", "online"] = "offline"
+    """offline: W&B files under the run directory, uploaded later by ``wandb sync``."""
     grace_s: float = 5.0
     """Seconds between SIGTERM and SIGKILL at shutdown."""
     extra: tuple[str, ...] = ()
@@ -102,6 +109,7 @@ def up(args: UpArgs) -> int:
     env["URSA_ROUTER_LISTEN"] = endpoint
     env["URSA_RUN_ID"] = args.run_id
     env["URSA_RUNS_DIR"] = args.runs_dir
+    env["URSA_WANDB"] = args.wandb_mode if args.wandb else "off"
     common = ["--preset", args.preset, "--env", args.env, *args.extra]
     py = sys.executable
     children: list[Child] = []
@@ -143,8 +151,14 @@ def up(args: UpArgs) -> int:
             print(f"  dashboard: http://{shown}:{args.dashboard_port}", flush=True)
         if args.api:
             print(f"  HTTP API:  http://{shown}:{args.api_port}  (docs: /docs)", flush=True)
-        print(f"  router:    {endpoint}\n  run dir:   {args.runs_dir}/{args.run_id}\n"
-              "  Ctrl-C stops everything.\n", flush=True)
+        run_dir = Path(args.runs_dir) / args.run_id
+        print(f"  router:    {endpoint}\n  run dir:   {run_dir}", flush=True)
+        print(f"  metrics:   {tensorboard_command(run_dir)}", flush=True)
+        if args.wandb:
+            print(f"  W&B:       {args.wandb_mode}, files in {run_dir / 'wandb'}"
+                  + (f" (upload: wandb sync {run_dir / 'wandb'}/offline-run-*)"
+                     if args.wandb_mode == "offline" else ""), flush=True)
+        print("  Ctrl-C stops everything.\n", flush=True)
 
     while not stopping.is_set():
         if router.proc.poll() is not None:

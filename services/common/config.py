@@ -8,7 +8,7 @@ import os
 import sys
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal
 
 import yaml
 
@@ -25,6 +25,19 @@ class BusConfig:
     """Endpoint the router listens on (router only; env URSA_ROUTER_LISTEN)."""
     connect_timeout_s: float = 30.0
     """How long a client retries connecting to the router at start-up before giving up."""
+    auth: str = os.environ.get("URSA_BUS_AUTH", "auto")
+    """Router authentication and access control: ``on``, ``off`` or ``auto`` (on when an
+    endpoint is not loopback or the run's secrets exist; env URSA_BUS_AUTH). See
+    services/common/secrets.py."""
+    secrets: str = os.environ.get("URSA_SECRETS_DIR", "")
+    """Directory of the run's secrets (bus key, credentials); empty: ``<run dir>/secrets``
+    (env URSA_SECRETS_DIR)."""
+    key_file: str = os.environ.get("URSA_BUS_KEY_FILE", "")
+    """Run key (hex) of the bus frames' MACs; empty: ``bus.key`` of the secrets directory when
+    it exists, else checksums only (env URSA_BUS_KEY_FILE)."""
+    credentials: str = os.environ.get("URSA_BUS_CREDENTIALS", "")
+    """File holding this client's ``user:password``; empty: ``<secrets>/<service>.cred``
+    (env URSA_BUS_CREDENTIALS)."""
 
 
 @dataclass(frozen=True)
@@ -35,6 +48,14 @@ class RunConfig:
     """Run identifier: a key chunk of every topic and the run directory's name (env URSA_RUN_ID)."""
     root: Path = Path(os.environ.get("URSA_RUNS_DIR", "runs"))
     """Directory holding run directories (env URSA_RUNS_DIR)."""
+    metrics_every_s: float = float(os.environ.get("URSA_METRICS_EVERY_S", "5"))
+    """Stats are written to the run's metrics (JSONL, TensorBoard, W&B) at most this often
+    (env URSA_METRICS_EVERY_S)."""
+    wandb: Literal["off", "offline", "online"] = (
+        "offline" if os.environ.get("URSA_WANDB") == "offline"
+        else "online" if os.environ.get("URSA_WANDB") == "online" else "off")
+    """Also log stats to Weights & Biases: offline (files under <run>/wandb, ``wandb sync``
+    uploads them) or online; needs the wandb extra (env URSA_WANDB)."""
 
     @property
     def dir(self) -> Path:

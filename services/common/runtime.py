@@ -2,11 +2,10 @@
 
 from __future__ import annotations
 
-import json
 import logging
 import threading
 import time
-from typing import IO, Any
+from typing import Any
 
 import numpy as np
 import zenoh
@@ -16,13 +15,11 @@ from proto import ursa_pb2 as pb
 from proto.topics import Topics
 from services.common.bus import DropCounter, open_session, publisher
 from services.common.config import BusConfig, RunConfig
+from services.common.metrics import MetricsLog
 
 
 class ServiceRuntime:
     """A service's bus session, liveliness token, drop counter and stats publisher."""
-
-    METRICS_EVERY_S = 5.0
-    """Stats are also appended to ``<run>/metrics/<service>-<id>.jsonl`` at most this often."""
 
     def __init__(self, service: str, sid: str, bus: BusConfig, run: RunConfig) -> None:
         self.service = service
@@ -32,13 +29,13 @@ class ServiceRuntime:
         self.sender = f"{service}/{sid}"
         self.log = logging.getLogger(self.sender)
         self.drops = DropCounter()
-        self.session: zenoh.Session = open_session(bus)
+        self.session: zenoh.Session = open_session(bus, service, run)
         self._token = self.session.liveliness().declare_token(self.topics.alive(service, sid))
         key = self.topics.stats(service, sid)
         self._stats_pub = publisher(self.session, key, reliable=False)
         self.started = time.time()
         self.stop = threading.Event()
-        self._metrics_file: IO[str] | None = None
+        self.metrics = MetricsLog(run.dir, run.run_id, service, sid, run.wandb)
         self._metrics_last = 0.0
 
     def header(self) -> pb.Header:
@@ -55,6 +52,8 @@ class ServiceRuntime:
         for k, v in scalars.items():
             msg.scalars[k] = float(v)
         msg.scalars["dropped_messages"] = float(self.drops.total)
+        msg.scalars.update(self.drops.scalars())
+        msg.labels.update(self.drops.labels())
         msg.scalars["uptime_s"] = time.time() - self.started
         for k, s in (labels or {}).items():
             msg.labels[k] = s
@@ -64,23 +63,16 @@ class ServiceRuntime:
         self._record(msg)
 
     def _record(self, msg: pb.Stats, force: bool = False) -> None:
-        """Append the stats to the run's metrics file (the source of training curves)."""
+        """Write the stats to the run's metrics (JSONL, TensorBoard, W&B: the source of training
+        curves), at most every ``run.metrics_every_s``."""
         now = time.time()
-        if not force and now - self._metrics_last < self.METRICS_EVERY_S:
+        if not force and now - self._metrics_last < self.run.metrics_every_s:
             return
         self._metrics_last = now
-        if self._metrics_file is None:
-            path = self.run.dir / "metrics" / f"{self.service}-{self.sid}.jsonl"
-            path.parent.mkdir(parents=True, exist_ok=True)
-            self._metrics_file = open(path, "a")  # noqa: SIM115 - open for the service's life
-        row = {"t": now, "service": self.service, "id": self.sid,
-               "scalars": dict(msg.scalars), "labels": dict(msg.labels)}
-        self._metrics_file.write(json.dumps(row) + "\n")
-        self._metrics_file.flush()
+        self.metrics.write(now, dict(msg.scalars), dict(msg.labels))
 
     def close(self) -> None:
-        if self._metrics_file is not None:
-            self._metrics_file.close()
+        self.metrics.close()
         for obj in (self._token, self._stats_pub):
             try:
                 obj.undeclare()
