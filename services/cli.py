@@ -1,4 +1,5 @@
-"""The ``ursa`` command: ``ursa up`` runs the stack; ``ursa eval ...`` evaluates a run."""
+"""The ``ursa`` command: ``ursa up`` runs the stack; ``ursa eval ...`` evaluates a run;
+``ursa secrets`` writes a run's bus key and router credentials."""
 
 from __future__ import annotations
 
@@ -8,8 +9,9 @@ import sys
 def main(argv: list[str] | None = None) -> None:
     args = list(sys.argv[1:] if argv is None else argv)
     if not args or args[0] in ("-h", "--help"):
-        print("usage: ursa {up,eval} ...\n\n  up    start the whole stack on this machine\n"
-              "  eval  reproduce the paper's figures from a run directory")
+        print("usage: ursa {up,eval,secrets} ...\n\n  up       start the whole stack on this "
+              "machine\n  eval     reproduce the paper's figures from a run directory\n"
+              "  secrets  write a run's bus key and router credentials (<run>/secrets)")
         raise SystemExit(0 if args else 2)
     cmd, rest = args[0], args[1:]
     if cmd == "up":
@@ -18,6 +20,10 @@ def main(argv: list[str] | None = None) -> None:
         from services.launcher import UpArgs, up
 
         raise SystemExit(up(tyro.cli(UpArgs, args=rest)))
+    if cmd == "secrets":
+        from services.common.secrets import main as secrets_main
+
+        raise SystemExit(secrets_main(rest))
     if cmd == "eval":
         from ursa.eval.cli import main as eval_main
 

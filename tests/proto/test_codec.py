@@ -6,6 +6,7 @@ import filecmp
 import shutil
 import subprocess
 import sys
+from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
@@ -92,20 +93,20 @@ def test_garbage_is_bad_message() -> None:
 
 def test_missing_header_is_bad_message() -> None:
     with pytest.raises(codec.BadMessage, match="without header"):
-        codec.decode(pb.SafeFeatures, pb.SafeFeatures(collector_id="c0").SerializeToString())
+        codec.decode(pb.SafeFeatures, codec.encode(pb.SafeFeatures(collector_id="c0")))
 
 
 def test_wrong_schema_version_is_bad_message() -> None:
     msg = pb.SkillRequest(header=codec.header("r", "x"), n=1)
     msg.header.schema_version = codec.SCHEMA_VERSION + 1
     with pytest.raises(codec.BadMessage, match="schema version"):
-        codec.decode(pb.SkillRequest, msg.SerializeToString())
+        codec.decode(pb.SkillRequest, codec.encode(msg))
 
 
 def test_wrong_run_is_bad_message() -> None:
     msg = pb.SkillRequest(header=codec.header("other", "x"), n=1)
     with pytest.raises(codec.BadMessage, match="from run"):
-        codec.decode(pb.SkillRequest, msg.SerializeToString(), run_id="mine")
+        codec.decode(pb.SkillRequest, codec.encode(msg), run_id="mine")
 
 
 def test_oversized_payload_is_rejected_before_parsing() -> None:
@@ -140,3 +141,89 @@ def test_regenerating_the_schema_changes_nothing(tmp_path: Path) -> None:
         assert filecmp.cmp(tmp_path / name, ROOT / "proto" / name, shallow=False), (
             f"proto/{name} is stale: run `make proto` and commit the result"
         )
+
+
+# ---- integrity: checksums, MACs, frames -----------------------------------------------------
+
+KEY = bytes(range(32))
+
+
+@pytest.fixture
+def no_run_key() -> Iterator[None]:
+    before = codec.run_key()
+    codec.set_run_key(None)
+    yield
+    codec.set_run_key(before)
+
+
+@pytest.mark.parametrize("key", [None, KEY], ids=["checksum", "mac"])
+@pytest.mark.parametrize("msg", _examples(), ids=lambda m: type(m).__name__)
+def test_every_message_round_trips_framed(
+    msg: pb.Message, key: bytes | None, no_run_key: None  # type: ignore[name-defined]
+) -> None:
+    data = codec.encode(msg, key=key)
+    f = codec.read_frame(data)
+    assert f.algorithm == (codec.MAC if key else codec.CHECKSUM)
+    assert f.sender == "test/0" and f.body == msg.SerializeToString()
+    assert codec.decode(type(msg), data, run_id="run1", key=key) == msg
+
+
+@pytest.mark.parametrize("key", [None, KEY], ids=["checksum", "mac"])
+def test_every_flipped_byte_fails_integrity(key: bytes | None, no_run_key: None) -> None:
+    msg = _examples()[1]
+    data = codec.encode(msg, key=key)
+    failures = 0
+    for i in range(len(data)):
+        bad = bytearray(data)
+        bad[i] ^= 0x5A
+        with pytest.raises(codec.BadMessage):
+            codec.decode(pb.SafeFeatures, bytes(bad), key=key)
+        try:
+            codec.verify(pb.SafeFeatures, bytes(bad), key=key)
+        except codec.IntegrityError:
+            failures += 1
+    # every byte is covered by the frame check (a flipped sender fails the tag too)
+    assert failures == len(data)
+
+
+def test_unframed_protobuf_fails_integrity(no_run_key: None) -> None:
+    msg = _examples()[1]
+    with pytest.raises(codec.IntegrityError, match="not a URSA frame"):
+        codec.decode(pb.SafeFeatures, msg.SerializeToString())
+
+
+def test_a_frame_cannot_pass_as_another_type(no_run_key: None) -> None:
+    # SafeFeatures and SkillRequest bodies both start with a header; the tag names the type
+    data = codec.encode(pb.SkillRequest(header=codec.header("r", "x/0"), n=3))
+    with pytest.raises(codec.IntegrityError, match="checksum"):
+        codec.decode(pb.SafeFeatures, data)
+
+
+def test_with_a_run_key_checksums_and_foreign_macs_are_refused(no_run_key: None) -> None:
+    msg = _examples()[2]
+    codec.set_run_key(KEY)
+    good = codec.encode(msg)
+    assert codec.read_frame(good).algorithm == codec.MAC
+    assert codec.decode(pb.SkillRequest, good) == msg
+    with pytest.raises(codec.IntegrityError, match="no MAC"):
+        codec.decode(pb.SkillRequest, codec.frame(msg.SerializeToString(),
+                                                  msg.DESCRIPTOR.full_name, "test/0"))
+    with pytest.raises(codec.IntegrityError, match="fails its MAC"):
+        codec.decode(pb.SkillRequest, codec.encode(msg, key=b"k" * 32))
+    codec.set_run_key(None)
+    with pytest.raises(codec.IntegrityError, match="no run key"):
+        codec.decode(pb.SkillRequest, good)
+
+
+def test_the_header_sender_must_be_the_frame_sender(no_run_key: None) -> None:
+    msg = pb.SkillRequest(header=codec.header("r", "learner/main"), n=1)
+    forged = codec.frame(msg.SerializeToString(), msg.DESCRIPTOR.full_name, "collector/c0")
+    with pytest.raises(codec.BadMessage, match="not the frame's"):
+        codec.decode(pb.SkillRequest, forged)
+    assert codec.claimed_sender(forged) == "collector/c0"
+    assert codec.claimed_sender(b"junk") == "?"
+
+
+def test_short_run_keys_are_refused() -> None:
+    with pytest.raises(ValueError, match="16 bytes"):
+        codec.set_run_key(b"short")

@@ -54,7 +54,7 @@ def test_services_count_and_drop_bad_payloads(tmp_path: Path) -> None:
         good = pb.SafeFeatures(header=codec.header(st.run_id, "good/0"), collector_id="good",
                                features=codec.to_array(np.random.default_rng(0)
                                                        .uniform(-1, 1, (50, 2)).astype(np.float32)))
-        session.put(st.topics.features("good"), good.SerializeToString())
+        session.put(st.topics.features("good"), codec.encode(good))
         wait_for(lambda: (s := watcher.get("repertoire", "main")) and s.scalars["size"] >= 40,
                  30, "the good features to be committed")
         assert rep.alive() and learner.alive(), st.logs()
