@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import time
 from pathlib import Path
 
 import numpy as np
@@ -12,13 +13,14 @@ import pytest
 import torch
 
 from tests.ursa.test_policy_numpy import TorchUniforms
-from ursa.envs.point import PointEnv
+from ursa import kde
+from ursa.envs.point import PointConfig, PointEnv
 from ursa.learner import Learner, SkillSnapshot
 from ursa.learner_config import LearnerConfig, learner_preset
 from ursa.policy import Policy
 from ursa.repertoire import Repertoire, RepertoireConfig
 from ursa.replay import Replay
-from ursa.serial import SerialConfig, SerialLoop, evaluate_skills
+from ursa.serial import EvalResult, SerialConfig, SerialLoop, evaluate_skills
 
 torch.set_num_threads(1)
 
@@ -91,13 +93,22 @@ def test_train_step_every_mode(mode: str) -> None:
     elif vae:
         inputs = np.concatenate([pts, pts**2], 1)
         snap = _snapshot(learner.encode(inputs), inputs)
+    phases = ("wm", "imagination", "actor", "critics", "multipliers", "vae")
+    timed = wall = 0.0
     for _ in range(4):
-        m = learner.train_step(replay.sample(cfg.batch_size, cfg.seq_len, rng), snap)
+        batch = replay.sample(cfg.batch_size, cfg.seq_len, rng)
+        t0 = time.perf_counter()
+        m = learner.train_step(batch, snap)
+        wall += time.perf_counter() - t0
+        timed += sum(m[f"time/{p}"] for p in phases)
+        # the phases that always compute take time; each phase is timed from its own start
+        assert all(m[f"time/{p}"] > 0.0 for p in ("wm", "imagination", "actor", "critics"))
+    # the phases are disjoint slices of the step: together they are at most its wall time, and
+    # they are most of it (only the metrics' conversion to floats is outside them)
+    assert 0.5 * wall < timed <= wall
     assert all(math.isfinite(v) for v in m.values())
     for key in ("wm/loss", "wm/decoder", "wm/reward", "wm/dyn", "wm/rep", "actor/loss"):
         assert key in m
-    for key in ("time/wm", "time/imagination", "time/actor", "time/critics", "time/multipliers"):
-        assert m[key] >= 0.0
     if mode == "daydreamer":
         assert learner.skill_dim == 0 and "lambda1/mean" not in m and "wm/cost" not in m
     else:
@@ -299,11 +310,43 @@ def test_serial_loop_and_evaluation_smoke() -> None:
     assert loop.policy.version == loop.learner.updates
     assert loop.repertoire is not None and len(loop.repertoire) == 200
     skills = loop.repertoire.sample(3, np.random.default_rng(0))
-    res = evaluate_skills(loop.policy, PointEnv(seed=1), skills, 20, loop.repertoire.cov)
+    res = evaluate_skills(loop.policy, PointEnv(seed=1), skills, 20, loop.repertoire.cov,
+                          record=True)
     assert res.achieved.shape == (3, 2) and res.distance.shape == (3,)
-    assert np.all((res.violation_rate >= 0) & (res.violation_rate <= 1))
-    rnd = evaluate_skills(None, PointEnv(seed=1), skills, 20, loop.repertoire.cov)
-    assert rnd.returns.shape == (3,)
+    # reference: the recorded actions replayed in a fresh env of the same seed, without resets
+    # (the point env's φ is the position itself in ursa-supervised mode)
+    _check_against_replay(res, PointEnv(seed=1), loop.repertoire.cov)
+    # random actions in an arena that is mostly unsafe disc: some steps are unsafe, some not
+    big = PointConfig(unsafe_radius=0.9)
+    rnd = evaluate_skills(None, PointEnv(big, seed=1), skills, 20, loop.repertoire.cov,
+                          record=True)
+    assert np.any(rnd.violation_rate > 0) and np.any(rnd.violation_rate < 1)
+    _check_against_replay(rnd, PointEnv(big, seed=1), loop.repertoire.cov)
+
+
+def _check_against_replay(res: EvalResult, env: PointEnv, cov: np.ndarray) -> None:
+    """``res``'s returns, violation rates, achieved skills and distances equal what stepping
+    ``env`` with ``res``'s recorded actions gives, counted here step by step."""
+    assert res.actions is not None and res.obs is not None
+    k, steps = res.actions.shape[:2]
+    env.reset()
+    sigma = kde.regularize_cov(cov)
+    for i in range(k):
+        ret, unsafe, pos = 0.0, 0, []
+        for t in range(steps):
+            obs, r, _, _, info = env.step(res.actions[i, t])
+            # float32 recorded actions: the replay drifts by rounding only
+            np.testing.assert_allclose(obs, res.obs[i, t], atol=1e-5)
+            ret += r
+            unsafe += not info["safe"]
+            pos.append(info["features"]["position"])
+        assert res.returns[i] == pytest.approx(ret, rel=1e-6)
+        assert res.violation_rate[i] == unsafe / steps
+        mean = np.mean(pos, 0)
+        np.testing.assert_allclose(res.achieved[i], mean, atol=1e-5)
+        d = mean - res.skills[i]
+        assert res.distance[i] == pytest.approx(  # ‖d‖_Σ = sqrt(dᵀ Σ⁻¹ d)
+            float(np.sqrt(d @ np.linalg.solve(sigma, d))), rel=1e-4, abs=1e-5)
 
 
 def test_serial_loop_ursa_mode_reencodes() -> None:
