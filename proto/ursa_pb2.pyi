@@ -29,7 +29,7 @@ class Header(_message.Message):
     def __init__(self, schema_version: _Optional[int] = ..., run_id: _Optional[str] = ..., stamp: _Optional[float] = ..., sender: _Optional[str] = ...) -> None: ...
 
 class TransitionChunk(_message.Message):
-    __slots__ = ("header", "collector_id", "seq", "first_step", "policy_version", "incarnation", "obs", "action", "reward", "cost", "safe", "features", "skill", "task", "damage")
+    __slots__ = ("header", "collector_id", "seq", "first_step", "policy_version", "incarnation", "obs", "action", "reward", "cost", "safe", "features", "skill", "task", "damage", "base_pose", "stamp")
     HEADER_FIELD_NUMBER: _ClassVar[int]
     COLLECTOR_ID_FIELD_NUMBER: _ClassVar[int]
     SEQ_FIELD_NUMBER: _ClassVar[int]
@@ -45,6 +45,8 @@ class TransitionChunk(_message.Message):
     SKILL_FIELD_NUMBER: _ClassVar[int]
     TASK_FIELD_NUMBER: _ClassVar[int]
     DAMAGE_FIELD_NUMBER: _ClassVar[int]
+    BASE_POSE_FIELD_NUMBER: _ClassVar[int]
+    STAMP_FIELD_NUMBER: _ClassVar[int]
     header: Header
     collector_id: str
     seq: int
@@ -60,7 +62,9 @@ class TransitionChunk(_message.Message):
     skill: Array
     task: str
     damage: str
-    def __init__(self, header: _Optional[_Union[Header, _Mapping]] = ..., collector_id: _Optional[str] = ..., seq: _Optional[int] = ..., first_step: _Optional[int] = ..., policy_version: _Optional[int] = ..., incarnation: _Optional[int] = ..., obs: _Optional[_Union[Array, _Mapping]] = ..., action: _Optional[_Union[Array, _Mapping]] = ..., reward: _Optional[_Union[Array, _Mapping]] = ..., cost: _Optional[_Union[Array, _Mapping]] = ..., safe: _Optional[_Union[Array, _Mapping]] = ..., features: _Optional[_Union[Array, _Mapping]] = ..., skill: _Optional[_Union[Array, _Mapping]] = ..., task: _Optional[str] = ..., damage: _Optional[str] = ...) -> None: ...
+    base_pose: Array
+    stamp: Array
+    def __init__(self, header: _Optional[_Union[Header, _Mapping]] = ..., collector_id: _Optional[str] = ..., seq: _Optional[int] = ..., first_step: _Optional[int] = ..., policy_version: _Optional[int] = ..., incarnation: _Optional[int] = ..., obs: _Optional[_Union[Array, _Mapping]] = ..., action: _Optional[_Union[Array, _Mapping]] = ..., reward: _Optional[_Union[Array, _Mapping]] = ..., cost: _Optional[_Union[Array, _Mapping]] = ..., safe: _Optional[_Union[Array, _Mapping]] = ..., features: _Optional[_Union[Array, _Mapping]] = ..., skill: _Optional[_Union[Array, _Mapping]] = ..., task: _Optional[str] = ..., damage: _Optional[str] = ..., base_pose: _Optional[_Union[Array, _Mapping]] = ..., stamp: _Optional[_Union[Array, _Mapping]] = ...) -> None: ...
 
 class SafeFeatures(_message.Message):
     __slots__ = ("header", "collector_id", "seq", "features")

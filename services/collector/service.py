@@ -24,7 +24,7 @@ import torch
 
 from proto import codec
 from proto import ursa_pb2 as pb
-from services.common.bus import publisher, query_one, safe_handler
+from services.common.bus import checked_decode, publisher, query_one, safe_handler, validate_with
 from services.common.config import BusConfig, RunConfig, config_hash, save_resolved
 from services.common.runtime import ServiceRuntime
 from ursa.config import Config, build_env
@@ -64,6 +64,7 @@ class Collector:
     def __init__(self, args: CollectorArgs) -> None:
         self.args = args
         self.cfg = args.core
+        validate_with(self.cfg)  # every message decoded is checked against the run's bounds
         self.cid = args.collector_id
         self.rt = ServiceRuntime("collector", self.cid, args.bus, args.run)
         self.log = self.rt.log
@@ -169,7 +170,7 @@ class Collector:
         if reply.ok is None:
             return
         try:
-            msg = codec.decode(pb.SkillReply, reply.ok.payload.to_bytes())
+            msg = checked_decode(pb.SkillReply, reply.ok.payload.to_bytes())
             if msg.error:
                 return
             skills = codec.from_array(msg.skills)
@@ -211,7 +212,8 @@ class Collector:
         existing = query_one(self.rt.session, t.weights, pb.PolicyWeights, timeout_s=1.0)
         if existing is not None:
             self._on_weights(existing, t.weights)
-        fields = ("obs", "action", "reward", "cost", "safe", "features", "skill")
+        fields = ("obs", "action", "reward", "cost", "safe", "features", "skill", "base_pose",
+                  "stamp")
         buf: dict[str, list[Any]] = {k: [] for k in fields}
         chunk_first_step = 0
         last_stats = 0.0
@@ -247,6 +249,9 @@ class Collector:
             buf["safe"].append(safe)
             buf["features"].append(feat)
             buf["skill"].append(self.skill)
+            buf["stamp"].append(time.time())
+            if "base_position" in info:  # the robot's pose, for the replay's Foxglove view
+                buf["base_pose"].append([*info["base_position"], *info["base_orientation"]])
             obs = next_obs
             self.step_count += 1
             self.ret_window.append(float(reward))
@@ -283,7 +288,10 @@ class Collector:
             "safe": np.asarray(buf["safe"], np.bool_),
             "features": np.asarray(buf["features"], np.float32),
             "skill": np.asarray(buf["skill"], np.float32),
+            "stamp": np.asarray(buf["stamp"], np.float64),
         }
+        if len(buf["base_pose"]) == len(buf["obs"]):
+            arr["base_pose"] = np.asarray(buf["base_pose"], np.float32)
         msg = pb.TransitionChunk(
             header=self.rt.header(), collector_id=self.cid, seq=self.seq, first_step=first_step,
             policy_version=self.policy_version, incarnation=self.incarnation,
