@@ -39,6 +39,7 @@ import gymnasium as gym
 import numpy as np
 import pybullet as pb
 import pybullet_data
+from scipy import signal
 
 from ursa.envs import tasks
 
@@ -154,13 +155,10 @@ class A1Config:
 
 
 def butterworth2(cutoff_hz: float, sample_hz: float) -> tuple[np.ndarray, np.ndarray]:
-    """Coefficients (b (3,), a (3,), a[0] = 1) of a 2nd-order Butterworth low-pass (bilinear)."""
-    k = math.tan(math.pi * cutoff_hz / sample_hz)
-    norm = 1.0 / (1.0 + math.sqrt(2.0) * k + k * k)
-    b0 = k * k * norm
-    b = np.array([b0, 2.0 * b0, b0])
-    a = np.array([1.0, 2.0 * (k * k - 1.0) * norm, (1.0 - math.sqrt(2.0) * k + k * k) * norm])
-    return b, a
+    """Coefficients (b (3,), a (3,), a[0] = 1) of a 2nd-order Butterworth low-pass (bilinear,
+    pre-warped at the cutoff): ``scipy.signal.butter``."""
+    b, a = signal.butter(2, cutoff_hz, btype="low", fs=sample_hz)
+    return np.asarray(b, float), np.asarray(a, float)
 
 
 class A1Env(gym.Env[np.ndarray, np.ndarray]):
@@ -269,9 +267,11 @@ class A1Env(gym.Env[np.ndarray, np.ndarray]):
         self._act_kd = self._kd[self._active].tolist()
 
     def _reset_filter(self) -> None:
-        # history of targets (x) and outputs (y), newest first, at the standing pose's steady state
-        self._fx = [self._stand.copy(), self._stand.copy()]
-        self._fy = [self._stand.copy(), self._stand.copy()]
+        # the filter's state (2, 12) at the standing pose's steady state
+        self._fz: np.ndarray | None = None
+        if self._filter_b is not None and self._filter_a is not None:
+            zi = signal.lfilter_zi(self._filter_b, self._filter_a)
+            self._fz = zi[:, None] * self._stand[None, :]
 
     def _simulate(self, joint_targets: list[float]) -> float:
         """Run one control step of PD torque control; returns r_work (J) of the step.
@@ -364,12 +364,8 @@ class A1Env(gym.Env[np.ndarray, np.ndarray]):
         fb, fa = self._filter_b, self._filter_a
         if fb is None or fa is None:
             return q
-        x = np.asarray(q)
-        (x1, x2), (y1, y2) = self._fx, self._fy
-        y = fb[0] * x + fb[1] * x1 + fb[2] * x2 - fa[1] * y1 - fa[2] * y2
-        self._fx = [x, x1]
-        self._fy = [y, y1]
-        return y.tolist()
+        y, self._fz = signal.lfilter(fb, fa, np.asarray(q)[None], axis=0, zi=self._fz)
+        return list(y[0].tolist())
 
     def _place_standing(self, x: float, y: float, yaw: float) -> None:
         """Put the robot upright at standing height with standing joints (frozen joints keep
