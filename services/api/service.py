@@ -4,7 +4,7 @@ Subscribes:  ursa/{run}/*/stats/** (Stats), ursa/{run}/repertoire/snapshot (Repe
              also queried at start and while none has arrived)
 Queries:     ursa/{run}/repertoire/sample (POST /skills/sample),
              ursa/{run}/evaluator/evaluate (POST /evaluate)
-Liveliness:  watches ursa/{run}/alive/**; declares ursa/{run}/alive/api/main
+Liveliness:  watches ursa/{run}/alive/*/*; declares ursa/{run}/alive/api/main
 Publishes:   ursa/{run}/api/stats (request counts)
 
 Placement: a separate process rather than a thread of the repertoire or the dashboard, so that

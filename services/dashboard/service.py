@@ -2,7 +2,7 @@
 
 Subscribes:  ursa/{run}/*/stats/** (Stats of every service)
              ursa/{run}/repertoire/snapshot (RepertoireSnapshot; also queried at start)
-Liveliness:  watches ursa/{run}/alive/**; declares ursa/{run}/alive/dashboard/main
+Liveliness:  watches ursa/{run}/alive/*/*; declares ursa/{run}/alive/dashboard/main
 Publishes:   ursa/{run}/dashboard/stats (Stats: viewers, skills shown, plots, frame time)
 
 Bus callbacks only store decoded messages in a :class:`LiveState`; a page loop redraws from it

@@ -8,7 +8,7 @@ Queryables:  ursa/{run}/learner/weights (-> PolicyWeights, the latest)
 Publishes:   ursa/{run}/learner/weights (PolicyWeights, every few seconds)
              ursa/{run}/learner/encoder (EncoderWeights, on each new version)
              ursa/{run}/learner/stats (Stats: losses, λ1/λ2, replay, ratio, policy lag)
-Liveliness:  ursa/{run}/alive/learner/{id}
+Liveliness:  ursa/{run}/alive/learner/{id}; watches ursa/{run}/alive/collector/*
 Files:       <run>/replay/segment-*.mcap, <run>/checkpoints/learner.pt + learner_state.json
 """
 
