@@ -28,6 +28,10 @@ def main(argv: list[str] | None = None) -> None:
         from ursa.eval.cli import main as eval_main
 
         raise SystemExit(eval_main(rest))
+    if cmd == "export":
+        from ursa.export import main as export_main
+
+        raise SystemExit(export_main(rest))
     print(f"unknown command {cmd!r}; try `ursa --help`", file=sys.stderr)
     raise SystemExit(2)
 
