@@ -133,6 +133,10 @@ def execute_skills(
         raise ValueError("need 0 <= settle < steps")
     k = len(skills)
     rng = np.random.default_rng(seed)
+    if policy is not None:
+        # the RSSM latents come from the policy's own generator: reseeded, a call's result
+        # depends on its seed only, not on what the same policy executed before
+        policy.latent_rng = np.random.default_rng([seed, 1])
     keys = list(dict.fromkeys([*record, *([phi_key] if phi_key else [])]))
     sums = {key: np.zeros((k, int(env.feature_dims[key]))) for key in keys}
     err = np.zeros_like(skills) if tracking and phi_key else None

@@ -1,11 +1,15 @@
 """Every ``ursa eval`` command on small checkpoints: point env (fast) and short A1 runs (slow).
-Checks that the files exist and hold values in their valid ranges."""
+Checks that the files exist, and that their numbers agree with references computed here from
+the run's own outputs (metrics rows, per-step CSVs, the archive) and with the behaviour they
+measure (a frozen joint changes the return, coverage counts the cells the means fall in)."""
 
 from __future__ import annotations
 
 import csv
 import json
 import math
+import shutil
+from collections import Counter
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -15,7 +19,7 @@ import pytest
 
 from tests.ursa.eval._runs import small_config
 from ursa.eval.cli import main
-from ursa.eval.loading import load_run
+from ursa.eval.loading import iter_metrics, load_run
 from ursa.repertoire import Repertoire
 
 pytestmark = pytest.mark.timeout(600)
@@ -33,6 +37,59 @@ def _csv(path: Path) -> list[dict[str, str]]:
     assert path.is_file(), path
     with open(path) as f:
         return list(csv.DictReader(f))
+
+
+def _last_rows(run_dir: Path, service: str) -> list[dict[str, float]]:
+    """The scalars of a service's metrics rows, in order."""
+    return [r["scalars"] for r in iter_metrics(run_dir) if r["service"] == service]
+
+
+def _check_velocity(out: Path, s: dict[str, Any]) -> None:
+    """velocity.csv holds the target grid (row i·G + j: (axes[0][i], axes[1][j])), each
+    error is |achieved − target|, the per-step error bounds it from above (|mean| ≤ mean |·|),
+    and the JSON's error grid and means are the CSV's."""
+    rows = _csv(out / "velocity.csv")  # written with 6 significant digits
+    g = s["grid"]
+    col = {k: np.array([float(r[k]) for r in rows]) for k in rows[0]}
+    ax0, ax1 = (np.array(a) for a in s["axes"])
+    np.testing.assert_allclose(col["target_0"], np.repeat(ax0, g), rtol=1e-5)
+    np.testing.assert_allclose(col["target_1"], np.tile(ax1, g), rtol=1e-5)
+    for k in (0, 1):
+        err = col[f"error_{k}"]
+        np.testing.assert_allclose(err, np.abs(col[f"achieved_{k}"] - col[f"target_{k}"]),
+                                   rtol=1e-5, atol=1e-5)
+        assert np.all(col[f"step_error_{k}"] >= err - 1e-5)
+        np.testing.assert_allclose(np.array(s["error"])[:, :, k].ravel(), err, rtol=1e-5,
+                                   atol=1e-6)
+        assert s["error_mean"][k] == pytest.approx(err.mean(), rel=1e-5, abs=1e-6)
+        assert s["step_error_mean"][k] == pytest.approx(col[f"step_error_{k}"].mean(),
+                                                        rel=1e-5, abs=1e-6)
+
+
+def _check_spread(out: Path, e: dict[str, Any]) -> None:
+    """within_skill_spread is the mean distance of a skill's embedded points to their centroid
+    and between_skill_distance the mean distance between centroids, recomputed from the CSV."""
+    rows = _csv(out / "embedding.csv")
+    k, t = e["skills"], e["steps"]
+    pts = np.array([[float(r["x"]), float(r["y"])] for r in rows]).reshape(k, t, 2)
+    cent = pts.mean(1)
+    spread = np.linalg.norm(pts - cent[:, None], axis=-1).mean()
+    between = np.linalg.norm(cent[:, None] - cent[None], axis=-1)[~np.eye(k, dtype=bool)].mean()
+    assert e["within_skill_spread"] == pytest.approx(spread, rel=1e-4) and spread > 0
+    assert e["between_skill_distance"] == pytest.approx(between, rel=1e-4)
+
+
+def _check_final_rates(run_dir: Path, c: dict[str, Any]) -> None:
+    """The curves' final violation rate and rescues per hour, counted from the last two
+    collector rows (rows 50 steps apart, more than the default window of 1/25 of the run)."""
+    rows = _last_rows(run_dir, "collector")
+    a, b = rows[-2], rows[-1]
+    d = b["steps"] - a["steps"]
+    assert d >= c["env_steps"] / 25
+    f = c["final"]
+    assert f["violation_rate"] == pytest.approx((b["unsafe_total"] - a["unsafe_total"]) / d)
+    assert f["rescues_per_hour"] == pytest.approx(
+        (b["rescues"] - a["rescues"]) / d * c["control_hz"] * 3600.0)
 
 
 def _png(path: Path) -> None:
@@ -59,7 +116,12 @@ def test_run_dir_round_trip(point_run: Path) -> None:
     # the checkpoint path alone finds its run directory
     again = load_run(point_run / "checkpoints" / "learner.pt")
     assert again.run_dir == point_run and again.config == run.config
-    assert isinstance(Repertoire.load(point_run / "repertoire" / "archive.npz"), Repertoire)
+    # the archive is the run's final repertoire: what its last metrics row reported
+    archive = Repertoire.load(point_run / "repertoire" / "archive.npz")
+    last = _last_rows(point_run, "repertoire")[-1]
+    assert len(archive) == last["size"] > 1 and archive.commits == last["commits"]
+    assert archive.delta() == pytest.approx(last["delta"], rel=1e-9)
+    np.testing.assert_array_equal(archive.skills, run.repertoire.skills)
     state = json.loads((point_run / "checkpoints" / "learner_state.json").read_text())
     assert state["updates"] == run.updates
 
@@ -80,20 +142,30 @@ def test_diversity_point(point_run: Path, point_dd: Path, tmp_path: Path) -> Non
     s = _json(out / "diversity.json")
     _png(out / "diversity.png")
     assert s["env"] == "point" and s["feature_key"] == "position"
+    rows = _csv(out / "diversity_means.csv")
+    assert len(rows) == 24
     for label in ("ursa", "baseline"):
         r = s["runs"][label]
-        assert 1 <= r["covered_cells"] <= r["total_cells"] == 100
-        assert r["executions"] == 12 and math.isfinite(r["return_mean"])
-        assert 0.0 <= r["violation_rate_mean"] <= 1.0
+        mine = [row for row in rows if row["label"] == label]
+        means = np.array([[float(m["mean_position_0"]), float(m["mean_position_1"])]
+                          for m in mine])
+        # hand count: the 10 × 10 cells of [-1, 1]² that the 12 mean positions fall in
+        assert np.all(np.abs(means) <= 1.0)  # the arena
+        cells = Counter(tuple(np.minimum(((p + 1.0) / 0.2).astype(int), 9).tolist())
+                        for p in means)
+        assert r["covered_cells"] == len(cells) and r["total_cells"] == 100
+        # and they are the very cells (and counts) the cells CSV lists
+        listed = {tuple(int(x) for x in c["cell"].split()): int(c["count"])
+                  for c in _csv(out / f"diversity_cells_{label}.csv") if int(c["count"]) > 0}
+        assert listed == dict(cells)
+        assert r["executions"] == len(mine) == 12
+        assert r["return_mean"] == pytest.approx(np.mean([float(m["return"]) for m in mine]),
+                                                 rel=1e-5)
+        assert r["violation_rate_mean"] == pytest.approx(
+            np.mean([float(m["violation_rate"]) for m in mine]), rel=1e-5, abs=1e-6)
     assert s["runs"]["baseline"]["mode"] == "daydreamer"
     assert 0.0 <= s["runs"]["ursa"]["within_delta_fraction"] <= 1.0
     assert s["ratio"] == s["runs"]["ursa"]["covered_cells"] / s["runs"]["baseline"]["covered_cells"]
-    rows = _csv(out / "diversity_means.csv")
-    assert len(rows) == 24
-    means = np.array([[float(r["mean_position_0"]), float(r["mean_position_1"])] for r in rows])
-    assert np.all(np.abs(means) <= 1.0)  # the arena
-    cells = _csv(out / "diversity_cells_ursa.csv")
-    assert sum(int(c["count"]) > 0 for c in cells) == s["runs"]["ursa"]["covered_cells"]
 
 
 def test_default_out_is_run_eval(point_run: Path) -> None:
@@ -104,6 +176,7 @@ def test_default_out_is_run_eval(point_run: Path) -> None:
     assert 0.0 <= sum(s["explained_variance"]) <= 1.0 + 1e-9
     rows = _csv(point_run / "eval" / "embedding.csv")
     assert len(rows) == 45 and all(math.isfinite(float(r["x"])) for r in rows)
+    _check_spread(point_run / "eval", s)
 
 
 def test_velocity_on_point_positions(point_run: Path, tmp_path: Path) -> None:
@@ -113,9 +186,8 @@ def test_velocity_on_point_positions(point_run: Path, tmp_path: Path) -> None:
                  *QUIET]) == 0
     s = _json(out / "velocity.json")
     _png(out / "velocity.png")
-    err = np.array(s["error"])
-    assert err.shape == (3, 3, 2) and np.all(err >= 0) and np.all(np.isfinite(err))
-    assert np.all(np.array(s["step_error_mean"]) >= 0)
+    assert np.array(s["error"]).shape == (3, 3, 2)
+    _check_velocity(out, s)
     rep = load_run(point_run).require_repertoire().skills
     np.testing.assert_allclose([s["axes"][0][0], s["axes"][0][-1]],
                                [rep[:, 0].min(), rep[:, 0].max()])
@@ -129,12 +201,47 @@ def test_curves_point(point_run: Path, tmp_path: Path) -> None:
     _png(out / "curves.png")
     assert s["env_steps"] == 400
     f = s["final"]
-    assert 0.0 <= f["violation_rate"] <= 1.0 and f["rescues_per_hour"] == 0.0
+    assert f["rescues_per_hour"] == 0.0  # the point env never rescues
     assert 1 < f["repertoire_size"] <= 300 and f["delta"] > 0 and math.isfinite(f["entropy_bound"])
     assert math.isfinite(f["return"])
     curves = {r["curve"] for r in _csv(out / "curves.csv")}
     assert {"violation_rate", "rescues_per_hour", "return", "repertoire_size", "delta",
             "entropy_bound"} <= curves
+
+
+def test_curves_from_hand_written_metrics(point_run: Path, tmp_path: Path) -> None:
+    """Two collectors' counters, 100 steps per row each: total steps 0, 200, 400, 600, 800,
+    unsafe steps 0, 10, 10, 30, 60, rescues 0, 0, 1, 1, 4. With a window of 300 steps each
+    rate is taken from the latest row at least 300 steps back (the first row when none is)."""
+    run_dir = tmp_path / "run"
+    shutil.copytree(point_run, run_dir)
+    rows = []
+    for cid, unsafe, rescues in (("c0", [0, 10, 10, 30, 40], [0, 0, 1, 1, 3]),
+                                 ("c1", [0, 0, 0, 0, 20], [0, 0, 0, 0, 1])):
+        for i in range(5):
+            rows.append({"t": 1000.0 + i, "service": "collector", "id": cid, "labels": {},
+                         "scalars": {"steps": 100.0 * i, "unsafe_total": unsafe[i],
+                                     "rescues": rescues[i]}})
+    (run_dir / "metrics" / "collector-serial.jsonl").write_text(
+        "".join(json.dumps(r) + "\n" for r in rows))
+    out = tmp_path / "curves"
+    assert main(["curves", str(run_dir), "--out", str(out), "--window", "300",
+                 "--control-hz", "10", *QUIET]) == 0
+    s = _json(out / "curves.json")
+    assert s["env_steps"] == 800
+    csv_rows = _csv(out / "curves.csv")
+    curve = {name: np.array([[float(r["env_steps"]), float(r["value"])] for r in csv_rows
+                             if r["curve"] == name]) for name in ("violation_rate",
+                                                                  "rescues_per_hour")}
+    # 200: (10-0)/200; 400: (10-0)/400; 600: (30-10)/400; 800: (60-10)/400
+    np.testing.assert_allclose(curve["violation_rate"],
+                               [[200, 0.05], [400, 0.025], [600, 0.05], [800, 0.125]])
+    # per step × 10 steps/s × 3600 s/h: 0/200, 1/400, 1/400, 3/400
+    np.testing.assert_allclose(curve["rescues_per_hour"],
+                               [[200, 0.0], [400, 90.0], [600, 90.0], [800, 270.0]])
+    assert s["final"]["violation_rate"] == pytest.approx(0.125)
+    assert s["final"]["rescues_per_hour"] == pytest.approx(270.0)
+    assert s["mean"]["violation_rate"] == pytest.approx(0.0625)
 
 
 def test_all_runs_what_applies(point_run: Path, point_dd: Path, tmp_path: Path,
@@ -187,7 +294,8 @@ def test_a1_diversity_and_embedding(a1_runs: dict[str, Path], tmp_path: Path) ->
     assert main(["embedding", str(a1_runs["ursa"]), "--out", str(out), "--skills", "3",
                  "--steps", "20", *QUIET]) == 0
     e = _json(out / "embedding.json")
-    assert e["skills"] == 3 and e["within_skill_spread"] >= 0
+    assert e["skills"] == 3
+    _check_spread(out, e)
 
 
 @pytest.mark.slow
@@ -226,12 +334,29 @@ def test_a1_damage(a1_runs: dict[str, Path], tmp_path: Path) -> None:
             st = s["stats"][label][sc]
             assert st["runs"] == n_runs and math.isfinite(st["median"])
             assert st["min"] <= st["median"] <= st["max"]
+    reps = {p.name: load_run(p).require_repertoire() for p in (a1_runs["ursa"], a1_runs["vel"])}
     for r in s["runs"]:
         assert all(math.isfinite(x) for x in r["returns"])
         if r["label"] == "ursa":
-            assert len(r["returns"]) == 2 and r["score"] == max(r["returns"])
-            assert r["best_skill_id"] >= 0
+            # the best skill is the one whose return is the score, and it is in the archive
+            best = int(np.argmax(r["returns"]))
+            assert len(r["returns"]) == 2 and r["score"] == r["returns"][best]
+            np.testing.assert_allclose(r["best_skill"],
+                                       reps[r["run"]].get(np.array([r["best_skill_id"]]))[0],
+                                       rtol=1e-6)
     assert len(_csv(out / "damage.csv")) == 18
+    # the same skills and seed, intact: each frozen joint changes every skill's return, and a
+    # scenario evaluated twice gives the same returns (only the damage differs between them)
+    again = tmp_path / "dmg-intact"
+    assert main(["damage", str(a1_runs["ursa"]), "--scenarios", "intact", "front_hip",
+                 "back_lower", "--out", str(again), "--skills", "2", "--steps", "25",
+                 *QUIET]) == 0
+    by = {r["scenario"]: np.array(r["returns"]) for r in _json(again / "damage.json")["runs"]}
+    first = {r["scenario"]: np.array(r["returns"]) for r in s["runs"]
+             if r["run"] == a1_runs["ursa"].name}
+    for sc in ("front_hip", "back_lower"):
+        np.testing.assert_allclose(by[sc], first[sc], rtol=1e-9)
+        assert np.all(np.abs(by[sc] - by["intact"]) > 1e-6), (sc, by[sc], by["intact"])
 
 
 @pytest.mark.slow
@@ -242,11 +367,11 @@ def test_a1_velocity_and_curves(a1_runs: dict[str, Path], tmp_path: Path) -> Non
     s = _json(out / "velocity.json")
     _png(out / "velocity.png")
     assert s["dims"] == ["forward velocity (m/s)", "yaw rate (rad/s)"]
-    err = np.array(s["error"])
-    assert err.shape == (3, 3, 2) and np.all(err >= 0) and np.all(np.isfinite(err))
+    assert np.array(s["error"]).shape == (3, 3, 2)
+    _check_velocity(out, s)
     # the learned-feature run has no velocity skills
     assert main(["velocity", str(a1_runs["ursa"]), "--out", str(out), *QUIET]) == 1
     assert main(["curves", str(a1_runs["ursa"]), "--out", str(out), *QUIET]) == 0
     c = _json(out / "curves.json")
-    assert c["env_steps"] == 300 and 0.0 <= c["final"]["violation_rate"] <= 1.0
-    assert c["final"]["rescues_per_hour"] >= 0.0 and c["control_hz"] == 20.0
+    assert c["env_steps"] == 300 and c["control_hz"] == 20.0
+    _check_final_rates(a1_runs["ursa"], c)
