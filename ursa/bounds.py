@@ -97,7 +97,7 @@ def check(name: str, x: np.ndarray, box: Box) -> np.ndarray:
         lo, hi = np.asarray(box.low), np.asarray(box.high)
         with np.errstate(invalid="ignore"):
             col = int(np.argmax(~((row >= lo) & (row <= hi))))
-        raise OutOfBounds(f"{name}{list(bad.tolist())}[{col}] = {row[col]!r} outside "
+        raise OutOfBounds(f"{name}{list(bad.tolist())}[{col}] = {float(row[col])!r} outside "
                           f"[{lo[col]:g}, {hi[col]:g}]")
     return a
 
@@ -111,7 +111,7 @@ def check_finite(name: str, x: np.ndarray, bound: float) -> np.ndarray:
             ok = np.isfinite(af) & (np.abs(af) <= bound)
         if not ok.all():
             i = tuple(np.argwhere(~ok)[0].tolist())
-            raise OutOfBounds(f"{name}{list(i)} = {af[i]!r} is not finite within ±{bound:g}")
+            raise OutOfBounds(f"{name}{list(i)} = {float(af[i])!r} is not finite within ±{bound:g}")
     return a
 
 

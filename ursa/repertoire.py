@@ -31,6 +31,7 @@ from numba import njit
 from scipy.spatial import cKDTree
 
 from ursa import kde
+from ursa.bounds import Box
 
 
 @dataclass(frozen=True)
@@ -331,12 +332,17 @@ class Repertoire:
     Arrays handed out (``skills``, ``ids``, ``ages``, ``inputs``, ``nn_dist``) are copies in id
     order. ``ages`` holds the commit index (0-based count of valid commits) at which each skill
     was committed. Counters: ``commits`` (valid commits) = ``accepted`` + ``rejected``;
-    ``rejected_invalid`` counts features refused for NaN/inf values or a wrong shape (never
-    raised).
+    ``rejected_invalid`` counts features refused for NaN/inf values, a wrong shape or (with
+    ``bounds``) a value outside the declared skill box (never raised), ``rejected_out_of_bounds``
+    the last kind alone; ``repaired`` the skills dropped when the archive was loaded.
     """
 
-    def __init__(self, config: RepertoireConfig | None = None) -> None:
+    def __init__(self, config: RepertoireConfig | None = None, bounds: Box | None = None) -> None:
         self.config = config if config is not None else RepertoireConfig()
+        if bounds is not None and bounds.dim != self.config.dim:
+            raise ValueError(f"bounds of dimension {bounds.dim} for skills of {self.config.dim}")
+        self.bounds = bounds
+        """The declared skill box (ursa.bounds): no skill outside it is ever admitted."""
         c = self.config
         self._f = c.input_dim or 0
         self._p = np.zeros((c.size, c.dim))
@@ -365,6 +371,8 @@ class Repertoire:
         self.accepted = 0
         self.rejected = 0
         self.rejected_invalid = 0
+        self.rejected_out_of_bounds = 0
+        self.repaired = 0
         self.encoder_version = 0
 
     # --- commits -------------------------------------------------------------------------------
@@ -399,6 +407,10 @@ class Repertoire:
             return 0
         m = zz.shape[0]
         ok = np.isfinite(zz).all(axis=1)
+        if self.bounds is not None:
+            out = ok & ~self.bounds.contains(zz)
+            self.rejected_out_of_bounds += int(out.sum())
+            ok &= ~out
         if self._f:
             if ii is None or ii.shape != (m, self._f):
                 self.rejected_invalid += m
@@ -639,7 +651,7 @@ class Repertoire:
         new = np.asarray(encode_fn(self._inputs[order].copy()), dtype=np.float64)
         if new.shape != (n, self.config.dim):
             raise ValueError(f"encoder returned {new.shape}, expected {(n, self.config.dim)}")
-        keep = np.isfinite(new).all(axis=1)
+        keep = self._admissible(new)
         ids, ages, inputs = self._ids[order], self._ages[order], self._inputs[order]
         m = int(keep.sum())
         self._p[:m] = new[keep]
@@ -651,6 +663,11 @@ class Repertoire:
         self.encoder_version = int(version)
         self.refresh()
         return n - m
+
+    def _admissible(self, z: np.ndarray) -> np.ndarray:
+        """Mask (n,) of the rows of z (n, D) that are finite and inside ``bounds``."""
+        ok = np.isfinite(z).all(axis=1)
+        return ok & self.bounds.contains(z) if self.bounds is not None else ok
 
     # --- persistence ---------------------------------------------------------------------------
 
@@ -676,13 +693,21 @@ class Repertoire:
             "accepted": self.accepted,
             "rejected": self.rejected,
             "rejected_invalid": self.rejected_invalid,
+            "rejected_out_of_bounds": self.rejected_out_of_bounds,
             "encoder_version": self.encoder_version,
         }
 
     @classmethod
-    def from_state_dict(cls, state: dict[str, np.ndarray | int | float]) -> Repertoire:
+    def from_state_dict(
+        cls, state: dict[str, np.ndarray | int | float], bounds: Box | None = None
+    ) -> Repertoire:
         """Rebuild a repertoire from :meth:`state_dict` (or a loaded npz): same config,
-        archive, Σ, nearest neighbours and counters."""
+        archive, Σ, nearest neighbours and counters.
+
+        Repair: stored skills that are not finite, lie outside ``bounds`` or carry a
+        non-finite input (a corrupted file, or an archive written before the bounds were
+        enforced) are dropped and counted in ``repaired``; Σ and the nearest neighbours are
+        then recomputed from what is left."""
 
         def i(key: str) -> int:
             return int(np.asarray(state[key]))
@@ -696,20 +721,31 @@ class Repertoire:
             input_dim=None if input_dim < 0 else input_dim,
             ridge=float(np.asarray(state["ridge"])),
         )
-        rep = cls(cfg)
+        rep = cls(cfg, bounds)
         skills = np.asarray(state["skills"], dtype=np.float64).reshape(-1, cfg.dim)
         n = len(skills)
         if n > cfg.size:
             raise ValueError(f"{n} skills in a repertoire of size {cfg.size}")
+        ids = np.asarray(state["ids"], dtype=np.int64).reshape(n)
+        ages = np.asarray(state["ages"], dtype=np.int64).reshape(n)
+        inputs = np.asarray(state["inputs"], dtype=np.float64).reshape(n, rep._f)
+        keep = rep._admissible(skills) & np.isfinite(inputs).all(axis=1)
+        rep.repaired = int(n - keep.sum())
+        skills, ids, ages, inputs = skills[keep], ids[keep], ages[keep], inputs[keep]
+        n = len(skills)
         rep._p[:n] = skills
-        rep._ids[:n] = np.asarray(state["ids"], dtype=np.int64)
-        rep._ages[:n] = np.asarray(state["ages"], dtype=np.int64)
-        rep._inputs[:n] = np.asarray(state["inputs"], dtype=np.float64).reshape(n, rep._f)
+        rep._ids[:n] = ids
+        rep._ages[:n] = ages
+        rep._inputs[:n] = inputs
         rep._n = n
         for key in ("next_id", "since_refresh", "commits", "accepted", "rejected"):
             setattr(rep, key, i(key))
         rep.rejected_invalid = i("rejected_invalid")
+        if "rejected_out_of_bounds" in state:
+            rep.rejected_out_of_bounds = i("rejected_out_of_bounds")
         rep.encoder_version = i("encoder_version")
+        if rep.repaired:
+            rep.since_refresh = 0
         if n < cfg.size:
             rep._stale = True  # filling: Σ follows the archive
         else:
@@ -737,10 +773,11 @@ class Repertoire:
             raise
 
     @classmethod
-    def load(cls, path: str | os.PathLike[str]) -> Repertoire:
-        """Read a repertoire written by :meth:`save` (no pickle)."""
+    def load(cls, path: str | os.PathLike[str], bounds: Box | None = None) -> Repertoire:
+        """Read a repertoire written by :meth:`save` (no pickle), repaired against ``bounds``
+        (see :meth:`from_state_dict`)."""
         with np.load(path, allow_pickle=False) as data:
-            return cls.from_state_dict({k: data[k] for k in data.files})
+            return cls.from_state_dict({k: data[k] for k in data.files}, bounds)
 
 
 def _pow2(n: int) -> int:

@@ -27,7 +27,7 @@ from proto import ursa_pb2 as pb
 from services.api.app import create_app
 from services.api.bus import BusBackend
 from services.api.state import ApiState
-from services.common.bus import Presence, query_one, safe_handler
+from services.common.bus import Presence, query_one, safe_handler, validate_with
 from services.common.config import BusConfig, RunConfig, save_resolved
 from services.common.runtime import ServiceRuntime
 from services.dashboard.live import LiveState
@@ -61,6 +61,7 @@ class ApiService:
 
     def __init__(self, args: ApiArgs) -> None:
         self.args = args
+        validate_with(args.core)  # every message decoded is checked against the run's bounds
         self.rt = ServiceRuntime("api", "main", args.bus, args.run)
         self.log = self.rt.log
         save_resolved(args, args.run, "api")

@@ -18,7 +18,7 @@ import threading
 import time
 from collections import Counter
 from collections.abc import Callable
-from typing import Any, TypeVar
+from typing import TYPE_CHECKING, Any, TypeVar
 
 import zenoh
 from google.protobuf.message import Message
@@ -27,6 +27,10 @@ from proto import codec
 from services.common import secrets
 from services.common.config import BusConfig, RunConfig
 from ursa.bounds import OutOfBounds
+
+if TYPE_CHECKING:
+    from services.common.validate import Validator
+    from ursa.config import Config
 
 log = logging.getLogger(__name__)
 M = TypeVar("M", bound=Message)
@@ -132,12 +136,55 @@ class DropCounter:
                     "dropped_by_sender": json.dumps(dict(self.by_sender), sort_keys=True)}
 
 
+class Rejected(codec.BadMessage):
+    """A message that decodes but fails its semantic check (values outside what its producer
+    declares, or an impossible origin): a ``BadMessage`` so that every receiver drops it."""
+
+
+_validator_lock = threading.Lock()
+_validator: Validator | None = None
+
+
+def validate_with(cfg: Config | None) -> Validator:
+    """Check every message this process decodes through :func:`checked_decode` (hence every
+    :func:`safe_handler` and :func:`query_one`) against the bounds of ``cfg``; returns the
+    validator. Until a service calls it, only the checks needing no config run."""
+    from services.common.validate import Validator
+
+    global _validator
+    with _validator_lock:
+        _validator = Validator(cfg)
+        return _validator
+
+
+def validator() -> Validator:
+    global _validator
+    with _validator_lock:
+        if _validator is None:
+            from services.common.validate import Validator
+
+            _validator = Validator(None)
+        return _validator
+
+
+def checked_decode(cls: type[M], payload: bytes | bytearray | memoryview,
+                   run_id: str | None = None, key: str = "") -> M:
+    """``codec.decode`` and then the semantic check of the message (received on ``key``);
+    raises ``codec.BadMessage`` (``Rejected`` for a failed semantic check)."""
+    msg = codec.decode(cls, payload, run_id=run_id)
+    try:
+        validator()(msg, key)
+    except (OutOfBounds, codec.BadMessage) as e:
+        raise Rejected(str(e)) from e
+    return msg
+
+
 def reason_of(e: Exception) -> str:
     """The drop reason of a rejected payload: ``integrity`` (frame, checksum or MAC),
     ``out_of_bounds`` (values outside what the producer declares) or ``malformed``."""
     if isinstance(e, codec.IntegrityError):
         return "integrity"
-    if isinstance(e, OutOfBounds):
+    if isinstance(e, (OutOfBounds, Rejected)):
         return "out_of_bounds"
     return "malformed"
 
@@ -161,7 +208,7 @@ def safe_handler(
         key = str(sample.key_expr)
         payload = sample.payload.to_bytes()
         try:
-            msg = codec.decode(cls, payload, run_id=run_id)
+            msg = checked_decode(cls, payload, run_id=run_id, key=key)
         except codec.BadMessage as e:
             drops.add(reason_of(e), key, codec.claimed_sender(payload))
             log.warning("dropped %s on %s: %s", cls.__name__, key, e)
@@ -198,7 +245,7 @@ def query_one(
                 continue
             data = reply.ok.payload.to_bytes()
             try:
-                msg = codec.decode(cls, data)
+                msg = checked_decode(cls, data, key=key)
                 if check is not None:
                     check(msg)
                 return msg

@@ -22,7 +22,7 @@ from typing import Any
 import viser
 
 from proto import ursa_pb2 as pb
-from services.common.bus import Presence, query_one, safe_handler
+from services.common.bus import Presence, query_one, safe_handler, validate_with
 from services.common.config import BusConfig, RunConfig, save_resolved
 from services.common.runtime import ServiceRuntime
 from services.dashboard.live import LiveState
@@ -152,6 +152,7 @@ class Dashboard:
 
     def __init__(self, args: DashboardArgs) -> None:
         self.args = args
+        validate_with(args.core)  # every message decoded is checked against the run's bounds
         self.rt = ServiceRuntime("dashboard", "main", args.bus, args.run)
         save_resolved(args, args.run, "dashboard")
         t = self.rt.topics

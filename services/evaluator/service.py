@@ -29,7 +29,7 @@ import zenoh
 
 from proto import codec
 from proto import ursa_pb2 as pb
-from services.common.bus import query_one, safe_handler
+from services.common.bus import checked_decode, query_one, reason_of, safe_handler, validate_with
 from services.common.config import BusConfig, RunConfig, config_hash, save_resolved
 from services.common.runtime import ServiceRuntime
 from services.dashboard.live import SnapshotView
@@ -64,6 +64,7 @@ class Evaluator:
     def __init__(self, args: EvaluatorArgs) -> None:
         self.args = args
         self.cfg = args.core
+        validate_with(self.cfg)  # every message decoded is checked against the run's bounds
         self.rt = ServiceRuntime("evaluator", args.collector_id, args.bus, args.run)
         self.log = self.rt.log
         save_resolved(args, args.run, f"evaluator-{args.collector_id}")
@@ -224,9 +225,9 @@ class Evaluator:
     def _serve(self, query: zenoh.Query) -> None:
         payload = query.payload.to_bytes() if query.payload is not None else b""
         try:
-            req = codec.decode(pb.EvaluateRequest, payload, run_id=self.args.run.run_id)
+            req = checked_decode(pb.EvaluateRequest, payload, run_id=self.args.run.run_id)
         except codec.BadMessage as e:
-            self.rt.drops.add("malformed")
+            self.rt.drops.add(reason_of(e), self.rt.topics.evaluate, codec.claimed_sender(payload))
             reply = pb.EvaluateReply(header=self.rt.header(), error=f"invalid: {e}")
         else:
             reply = self.handle(req)

@@ -31,7 +31,7 @@ from safetensors.torch import save as st_save
 from proto import codec
 from proto import ursa_pb2 as pb
 from proto.topics import Topics
-from services.common.bus import Presence, publisher, query_one, safe_handler
+from services.common.bus import Presence, publisher, query_one, safe_handler, validate_with
 from services.common.config import BusConfig, RunConfig, config_hash, save_resolved
 from services.common.runtime import ServiceRuntime
 from services.learner.ingest import IngestLedger
@@ -80,6 +80,7 @@ class LearnerService:
     def __init__(self, args: LearnerArgs) -> None:
         self.args = args
         self.cfg = args.core
+        validate_with(self.cfg)  # every message decoded is checked against the run's bounds
         torch.set_num_threads(max(1, args.torch_threads))
         self.rt = ServiceRuntime("learner", args.learner_id, args.bus, args.run)
         self.log = self.rt.log

@@ -7,6 +7,12 @@ Queryables:  ursa/{run}/repertoire/sample (SkillRequest -> SkillReply)
 Publishes:   ursa/{run}/repertoire/snapshot (RepertoireSnapshot, a few per second)
              ursa/{run}/repertoire/stats (Stats)
 Liveliness:  ursa/{run}/alive/repertoire/main
+
+Trust: features outside the box the env declares for the feature function
+(``ursa.bounds.declared``) are counted and dropped at decode; the archive never admits a skill
+that is not finite or lies outside the declared skill box, an archive loaded from disk with such
+skills is repaired (count in the stats' ``repaired`` and in the log), and KDE draws are clipped
+to the declared sample box before they leave.
 """
 
 from __future__ import annotations
@@ -22,9 +28,17 @@ import zenoh
 
 from proto import codec
 from proto import ursa_pb2 as pb
-from services.common.bus import publisher, query_one, safe_handler
+from services.common.bus import (
+    checked_decode,
+    publisher,
+    query_one,
+    reason_of,
+    safe_handler,
+    validate_with,
+)
 from services.common.config import BusConfig, RunConfig, save_resolved
 from services.common.runtime import ServiceRuntime
+from ursa import bounds
 from ursa.config import Config
 from ursa.repertoire import Repertoire
 
@@ -54,6 +68,8 @@ class RepertoireService:
         self.log = self.rt.log
         save_resolved(args, args.run, "repertoire")
         self.learned = self.cfg.feature == "vae"
+        self.declared = bounds.declared(self.cfg)
+        validate_with(self.cfg)
         self.path = args.run.dir / "repertoire" / "archive.npz"
         self.lock = threading.Lock()
         self.rep = self._restore()
@@ -80,14 +96,18 @@ class RepertoireService:
 
     # ---- persistence ---------------------------------------------------------------------
     def _restore(self) -> Repertoire:
+        box = self.declared.skills
         if self.path.exists():
             try:
-                rep = Repertoire.load(self.path)
+                rep = Repertoire.load(self.path, bounds=box)
                 self.log.info("restored %d skills from %s", len(rep.skills), self.path)
+                if rep.repaired:
+                    self.log.warning("repaired %s: dropped %d skills not finite or outside %s",
+                                     self.path, rep.repaired, box)
                 return rep
             except Exception:
                 self.log.exception("cannot restore %s; starting empty", self.path)
-        return Repertoire(self.cfg.repertoire)
+        return Repertoire(self.cfg.repertoire, bounds=box)
 
     def save(self) -> None:
         self.path.parent.mkdir(parents=True, exist_ok=True)
@@ -96,6 +116,7 @@ class RepertoireService:
 
     # ---- inputs ----------------------------------------------------------------------------
     def _on_features(self, msg: pb.SafeFeatures, key: str) -> None:
+        # values were checked against the declared feature box at decode (checked_decode)
         feats = codec.from_array(msg.features)
         want = self.cfg.repertoire.input_dim if self.learned else self.cfg.repertoire.dim
         if feats.ndim != 2 or (want and feats.shape[1] != want):
@@ -145,11 +166,11 @@ class RepertoireService:
     def _on_sample(self, query: zenoh.Query) -> None:
         try:
             payload = query.payload.to_bytes() if query.payload is not None else b""
-            req = codec.decode(pb.SkillRequest, payload)
+            req = checked_decode(pb.SkillRequest, payload, key=self.rt.topics.sample)
             if req.n == 0 or req.n > self.args.max_sample:
                 raise codec.BadMessage(f"n={req.n} outside 1..{self.args.max_sample}")
         except codec.BadMessage as e:
-            self.rt.drops.add("malformed")
+            self.rt.drops.add(reason_of(e), self.rt.topics.sample, codec.claimed_sender(payload))
             query.reply_err(str(e).encode())
             return
         rng = np.random.default_rng(req.seed if req.has_seed else None)
@@ -158,8 +179,9 @@ class RepertoireService:
             if len(self.rep.skills) == 0:
                 reply.error = "repertoire is empty"
             else:
-                reply.skills.CopyFrom(codec.to_array(self.rep.sample(int(req.n), rng)
-                                                     .astype(np.float32)))
+                # the KDE's Gaussian tails reach past any box: clip to the declared one
+                draws = self.declared.samples.clip(self.rep.sample(int(req.n), rng))
+                reply.skills.CopyFrom(codec.to_array(draws.astype(np.float32)))
                 reply.delta = float(self.rep.delta())
                 reply.encoder_version = int(self.rep.encoder_version)
         query.reply(self.rt.topics.sample, codec.encode(reply))
@@ -242,6 +264,7 @@ class RepertoireService:
                 "delta": snap.delta, "entropy_bound": snap.entropy_bound,
                 "commits": rep.commits, "accepted": rep.accepted, "rejected": rep.rejected,
                 "invalid": rep.invalid, "encoder_version": rep.encoder_version,
+                "out_of_bounds": rep.rejected_out_of_bounds, "repaired": rep.repaired,
                 "accepted_per_s": (rep.accepted - a0) / dt if len(self.commits_window) > 1 else 0,
                 "rejected_per_s": (rep.rejected - r0) / dt if len(self.commits_window) > 1 else 0,
                 "pending_inputs": sum(len(p) for p in self.pending),
