@@ -130,8 +130,10 @@ class Stack:
         if "router" in self.procs:
             self.procs["router"].stop()
 
-    def logs(self) -> str:
-        return "\n".join(f"===== {n}\n{p.log()[-4000:]}" for n, p in self.procs.items())
+    def logs(self, tail: int | None = 4000) -> str:
+        """Every process's log (its last ``tail`` characters; None: all of it)."""
+        return "\n".join(f"===== {n} ({p.log_path})\n{p.log()[-tail:] if tail else p.log()}"
+                         for n, p in self.procs.items())
 
 
 class StatsWatcher:

@@ -10,6 +10,8 @@ from pathlib import Path
 
 import pytest
 
+from proto import ursa_pb2 as pb
+from services.common.bus import Presence
 from services.learner.replay_store import read_all
 from tests.stack import Stack, StatsWatcher, running_stack, wait_for
 
@@ -113,26 +115,59 @@ def test_learner_killed_resumes_from_checkpoint_with_its_replay(tmp_path: Path) 
 
 
 def test_router_restart_everyone_reconnects_and_data_flows(tmp_path: Path) -> None:
+    """The router stops and a new one starts on the same port: every service reconnects on its
+    own, chunks and features flow again and none was lost. Each step waits on state observed
+    over the bus (liveliness tokens, counters in stats stamped after the restart), never on a
+    fixed time; a failure carries every process's full log and the last stats seen."""
+    everyone = {("repertoire", "main"), ("learner", "main"), ("collector", "c0"),
+                ("collector", "c1")}
     with running_stack(tmp_path) as st:
         _start(st)
         session = st.session()
         w = StatsWatcher(session, st.topics)
-        wait_for(lambda: _scalar(w, "learner", "main", "chunks/c1") > 10, 60, "data flowing", 0.5)
-        st.procs["router"].stop()
-        time.sleep(3)
-        st.start_router()
-        before = {k: _scalar(w, "learner", "main", f"chunks/{k}") for k in ("c0", "c1")}
-        rep_before = _scalar(w, "repertoire", "main", "commits")
-        wait_for(lambda: all(_scalar(w, "learner", "main", f"chunks/{k}") > before[k] + 20
-                             for k in ("c0", "c1")), 60, "chunks after the restart", 0.5)
-        wait_for(lambda: _scalar(w, "repertoire", "main", "commits") > rep_before, 60,
-                 "features after the restart", 0.5)
-        wait_for(lambda: _alive_collectors(w) == {"c0", "c1"}, 30, "liveliness restored", 0.5)
-        ls = w.get("learner", "main")
-        assert ls is not None
-        # the collectors held their chunks while the router was down: nothing was lost
-        assert ls.scalars["missing/c0"] == 0 and ls.scalars["missing/c1"] == 0
-        for name, p in st.procs.items():
-            assert p.alive(), f"{name} died:\n{st.logs()}"
-        w.close()
-        session.close()
+        presence = Presence(session, st.topics.alive())
+
+        def alive() -> set[tuple[str, str]]:
+            return {p for k in presence.alive() if (p := st.topics.parse_alive(k)) is not None}
+
+        def fresh(service: str, sid: str, since: float) -> pb.Stats | None:
+            s = w.get(service, sid)
+            return s if s is not None and s.header.stamp > since else None
+
+        try:
+            wait_for(lambda: everyone <= alive(), 120, "every service's liveliness token", 0.2)
+            wait_for(lambda: _scalar(w, "learner", "main", "chunks/c1") > 10, 120,
+                     "data flowing", 0.2)
+            st.procs["router"].stop()
+            # our session lost the router: every service's token goes with it
+            wait_for(lambda: not everyone & alive(), 60, "the tokens to go with the router")
+            restarted = time.time()
+            st.start_router()
+            wait_for(lambda: everyone <= alive(), 120, "every service back on the new router",
+                     0.2)
+            # counters of stats published after the restart, then their growth
+            ls0 = wait_for(lambda: fresh("learner", "main", restarted), 60,
+                           "learner stats after the restart", 0.1)
+            rs0 = wait_for(lambda: fresh("repertoire", "main", restarted), 60,
+                           "repertoire stats after the restart", 0.1)
+            before = {k: ls0.scalars.get(f"chunks/{k}", 0.0) for k in ("c0", "c1")}
+            wait_for(lambda: all(_scalar(w, "learner", "main", f"chunks/{k}") > before[k] + 20
+                                 for k in ("c0", "c1")), 120, "chunks after the restart", 0.2)
+            wait_for(lambda: _scalar(w, "repertoire", "main", "commits")
+                     > rs0.scalars["commits"], 120, "features after the restart", 0.2)
+            wait_for(lambda: _alive_collectors(w) == {"c0", "c1"}, 60,
+                     "the learner to see both collectors", 0.2)
+            ls = w.get("learner", "main")
+            assert ls is not None
+            # the collectors held their chunks while the router was down: nothing was lost
+            assert ls.scalars["missing/c0"] == 0 and ls.scalars["missing/c1"] == 0, ls.scalars
+            dead = [name for name, p in st.procs.items() if not p.alive()]
+            assert not dead, f"{dead} died"
+        except Exception as e:
+            seen = {k: dict(v.scalars) for k, v in w.latest.items()}
+            raise AssertionError(f"{e}\nalive: {sorted(alive())}\nlast stats: {seen}\n"
+                                 f"{st.logs(tail=None)}") from e
+        finally:
+            presence.undeclare()
+            w.close()
+            session.close()

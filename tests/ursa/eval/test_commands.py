@@ -92,6 +92,24 @@ def _check_final_rates(run_dir: Path, c: dict[str, Any]) -> None:
         (b["rescues"] - a["rescues"]) / d * c["control_hz"] * 3600.0)
 
 
+def _hand_cells(s: dict[str, Any], label: str, out: Path) -> dict[str, Counter[tuple[int, ...]]]:
+    """Grid name -> how many of ``label``'s mean features fall in each cell, counted here from
+    diversity_means.csv and the grids' boxes in diversity.json (half-open cells, the last one
+    closed; means outside the box in no cell)."""
+    key = s["feature_key"]
+    rows = [r for r in _csv(out / "diversity_means.csv") if r["label"] == label]
+    cells: dict[str, Counter[tuple[int, ...]]] = {}
+    for g in s["grids"]:
+        count: Counter[tuple[int, ...]] = Counter()
+        for r in rows:
+            x = [float(r[f"mean_{key}_{d}"]) for d in g["dims"]]
+            if all(lo <= v <= hi for v, lo, hi in zip(x, g["low"], g["high"], strict=True)):
+                count[tuple(min(int((v - lo) / (hi - lo) * b), b - 1) for v, lo, hi, b
+                            in zip(x, g["low"], g["high"], g["bins"], strict=True))] += 1
+        cells[g["name"]] = count
+    return cells
+
+
 def _png(path: Path) -> None:
     assert path.is_file() and path.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n", path
     assert path.stat().st_size > 5000
@@ -153,6 +171,7 @@ def test_diversity_point(point_run: Path, point_dd: Path, tmp_path: Path) -> Non
         assert np.all(np.abs(means) <= 1.0)  # the arena
         cells = Counter(tuple(np.minimum(((p + 1.0) / 0.2).astype(int), 9).tolist())
                         for p in means)
+        assert _hand_cells(s, label, out) == {"position": cells}
         assert r["covered_cells"] == len(cells) and r["total_cells"] == 100
         # and they are the very cells (and counts) the cells CSV lists
         listed = {tuple(int(x) for x in c["cell"].split()): int(c["count"])
@@ -286,10 +305,13 @@ def test_a1_diversity_and_embedding(a1_runs: dict[str, Path], tmp_path: Path) ->
     s = _json(out / "diversity.json")
     _png(out / "diversity.png")
     assert s["feature_key"] == "vae_input" and len(s["grids"]) == 12
-    for r in s["runs"].values():
-        assert 12 <= r["covered_cells"] <= r["total_cells"] == 12 * 20  # every joint has a mean
-        assert sum(r["per_grid"].values()) == r["covered_cells"]
-        assert all(1 <= v <= 4 for v in r["per_grid"].values())
+    for label, r in s["runs"].items():
+        assert r["total_cells"] == 12 * 20
+        # per joint: the cells its 4 mean angles fall in, counted from the means CSV
+        hand = _hand_cells(s, label, out)
+        assert r["per_grid"] == {name: len(c) for name, c in hand.items()}
+        assert r["covered_cells"] == sum(len(c) for c in hand.values())
+        assert r["outside_points"] == sum(4 - sum(c.values()) for c in hand.values())
     assert s["runs"]["ursa"]["mode"] == "ursa"
     assert main(["embedding", str(a1_runs["ursa"]), "--out", str(out), "--skills", "3",
                  "--steps", "20", *QUIET]) == 0
