@@ -52,6 +52,11 @@ class CollectorArgs:
     backlog_chunks: int = 4000
     """Chunks (and feature batches) kept while nobody subscribes (learner or router down); sent
     in order once a subscriber matches again. The oldest are dropped beyond this."""
+    resend_s: float = 10.0
+    """Chunks put in this many seconds before the subscribers went away (the router lost) are
+    put again when one matches again: a put racing the loss of the route vanishes silently, and
+    the learner drops the copies that did arrive (by sequence number). At least the link's lease
+    (Zenoh's default 10 s), the longest a dead link can look alive."""
     max_steps: int = 0
     """Stop after this many control steps (0: run until stopped)."""
     realtime_factor: float = 0.0
@@ -93,6 +98,9 @@ class Collector:
         self.backlog = {"chunks": deque[bytes](maxlen=args.backlog_chunks),
                         "features": deque[bytes](maxlen=args.backlog_chunks)}
         self.backlog_dropped = 0
+        self._recent_chunks: deque[tuple[float, bytes]] = deque()  # (put at, payload)
+        self._route_lost = threading.Event()
+        self._match_listener = self.pub_chunks.declare_matching_listener(self._on_matching)
         self.nonfinite_actions = 0
         """Policy actions with a NaN or inf entry (sanitised before the env and the replay)."""
         self._weights_lock = threading.Lock()
@@ -307,17 +315,34 @@ class Collector:
             self._send("features", self.pub_features, codec.encode(fm))
             self.feat_seq += 1
 
+    def _on_matching(self, status: Any) -> None:
+        if not status.matching:
+            self._route_lost.set()
+
     def _send(self, stream: str, pub: Any, payload: bytes) -> None:
-        """Put now if a subscriber matches, else keep it (bounded) until one does."""
+        """Put now if a subscriber matches, else keep it (bounded) until one does. After the
+        chunks' route was lost, the chunks put just before it are queued again first."""
         q = self.backlog[stream]
+        if stream == "chunks" and self._route_lost.is_set():
+            self._route_lost.clear()
+            q.extendleft(reversed([p for _, p in self._recent_chunks]))
+            self._recent_chunks.clear()
         if not pub.matching_status.matching:
             if len(q) == q.maxlen:
                 self.backlog_dropped += 1
             q.append(payload)
             return
         while q:
-            pub.put(q.popleft())
+            self._put(stream, pub, q.popleft())
+        self._put(stream, pub, payload)
+
+    def _put(self, stream: str, pub: Any, payload: bytes) -> None:
         pub.put(payload)
+        if stream == "chunks":
+            now = time.monotonic()
+            self._recent_chunks.append((now, payload))
+            while self._recent_chunks and self._recent_chunks[0][0] < now - self.args.resend_s:
+                self._recent_chunks.popleft()
 
     def _publish_stats(self, sps: float) -> None:
         n = max(len(self.unsafe_window), 1)
@@ -346,7 +371,7 @@ class Collector:
         )
 
     def close(self) -> None:
-        for h in (self.sub_weights, self.pub_chunks, self.pub_features):
+        for h in (self._match_listener, self.sub_weights, self.pub_chunks, self.pub_features):
             try:
                 h.undeclare()
             except Exception:
