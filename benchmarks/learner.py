@@ -1,9 +1,17 @@
 """Learner updates per second for the ``small`` and ``paper`` presets, split by phase.
 
-Claim: one URSA update (world model + imagination with V, ψ, C, λ1, λ2 and the actor + VAE)
-costs a bounded multiple of the same learner in ``daydreamer`` mode (world model + reward-only
-actor-critic), measured in the same run on the same device, with the time split between world
-model, imagination, actor, critics, multipliers and VAE.
+Claims, each measured in the same run on the same device and thread count:
+- the REINFORCE actor (``actor_grad="reinforce"``, the default) does the same work per update
+  as backpropagation through the dynamics (``"dynamics"``, the update before it), 512
+  imagination starts × 15 steps at ``small`` sizes, in a fraction of the time (the ratio);
+- one URSA update (world model + imagination with V, ψ, C, λ1, λ2 and the actor + VAE) costs a
+  bounded multiple of the same learner in ``daydreamer`` mode (world model + reward-only
+  actor-critic), with the time split between world model, imagination, actor, critics,
+  multipliers and VAE.
+
+Threads: the learner service's torch thread count (``--torch-threads``, env
+``URSA_TORCH_THREADS``, 1 by default: torch's worker threads collapse when collectors hold the
+cores) unless ``--threads`` says otherwise.
 
 Inputs are synthetic but shaped like the A1 (obs 46, action 12, VAE input 13, D = 3) with a
 repertoire snapshot of N_R = 5000 skills; no env is stepped, so this times the learner alone.
@@ -12,13 +20,15 @@ repertoire snapshot of N_R = 5000 skills; no env is stepped, so this times the l
     .venv/bin/python benchmarks/learner.py --quick    # < 60 s on a CPU
     .venv/bin/python benchmarks/learner.py --device cpu --presets small --updates 20
 
-The last line is ``RESULT updates_per_s=<small, ursa mode> ...``.
+The last line is ``RESULT updates_per_s=<small, ursa mode, 512 starts> ...
+dynamics_ratio=<reinforce ÷ dynamics updates/s>``.
 """
 
 from __future__ import annotations
 
 import argparse
 import dataclasses
+import os
 import time
 
 import numpy as np
@@ -29,6 +39,8 @@ from ursa.learner_config import LearnerConfig, learner_preset
 from ursa.repertoire import Repertoire, RepertoireConfig
 
 OBS, ACT, VAE_IN, D = 46, 12, 13, 3
+IMAG_STARTS = 512
+"""Imagination starts per update at every preset here (the issue's fixed work per update)."""
 PHASES = ("wm", "imagination", "actor", "critics", "multipliers", "vae")
 
 
@@ -81,11 +93,14 @@ def main() -> None:
     ap.add_argument("--device", default="cuda" if torch.cuda.is_available() else "cpu")
     ap.add_argument("--presets", default="small,paper", help="comma-separated presets")
     ap.add_argument("--updates", type=int, default=0, help="timed updates (0: by preset)")
-    ap.add_argument("--threads", type=int, default=0, help="torch CPU threads (0: default)")
+    ap.add_argument("--threads", type=int, default=0,
+                    help="torch CPU threads (0: the learner service's, URSA_TORCH_THREADS or 1)")
+    ap.add_argument("--repeats", type=int, default=0,
+                    help="interleaved repeats of each measurement (median reported; 0: 3 quick)")
     ap.add_argument("--quick", action="store_true", help="few updates, < 60 s on a CPU")
     args = ap.parse_args()
-    if args.threads:
-        torch.set_num_threads(args.threads)
+    torch.set_num_threads(args.threads or int(os.environ.get("URSA_TORCH_THREADS", "1")))
+    repeats = args.repeats or 3
     cuda = args.device.startswith("cuda")
     rows = []
     for name in args.presets.split(","):
@@ -97,23 +112,33 @@ def main() -> None:
         else:
             n = 50 if name == "small" or cuda else 5
         warm = 1 if args.quick else 3
-        for mode in ("ursa", "daydreamer"):
-            if args.quick and mode == "daydreamer" and name != "small" and not cuda:
-                continue  # the CPU quick run keeps the paper preset to one update
-            cfg = dataclasses.replace(base, mode=mode)
-            r = measure(cfg, n, warm)
-            rows.append((name, mode, r))
-            print(f"measured {name}/{mode}: {r['updates_per_s']:.3f} updates/s", flush=True)
+        variants = [("ursa", "reinforce"), ("ursa", "dynamics"), ("daydreamer", "reinforce")]
+        if args.quick and name != "small" and not cuda:
+            variants = variants[:1]  # the CPU quick run keeps the paper preset to one update
+        runs: dict[tuple[str, str], list[dict[str, float]]] = {v: [] for v in variants}
+        for _ in range(repeats if name == "small" or cuda else 1):
+            for mode, grad in variants:  # interleaved, so that load hits every side alike
+                cfg = dataclasses.replace(base, mode=mode, actor_grad=grad,
+                                          imag_starts=IMAG_STARTS)
+                r = measure(cfg, n, warm)
+                runs[(mode, grad)].append(r)
+                print(f"measured {name}/{mode}/{grad}: {r['updates_per_s']:.3f} updates/s",
+                      flush=True)
+        for (mode, grad), rs in runs.items():
+            best = sorted(rs, key=lambda r: r["updates_per_s"])[len(rs) // 2]  # the median
+            label = mode if grad == "reinforce" else f"{mode}-bptt"
+            rows.append((name, label, best))
 
-    print(f"\ndevice: {args.device}, torch threads: {torch.get_num_threads()}")
-    head = f"{'preset':<7} {'mode':<11} {'upd/s':>8} {'s/upd':>8} " + " ".join(
+    print(f"\ndevice: {args.device}, torch threads: {torch.get_num_threads()}, "
+          f"imagination: {IMAG_STARTS} starts x 15 steps, median of {repeats}")
+    head = f"{'preset':<7} {'mode':<13} {'upd/s':>8} {'s/upd':>8} " + " ".join(
         f"{p[:11]:>11}" for p in PHASES
     )
     print(head)
     print("-" * len(head))
     for name, mode, r in rows:
         split = " ".join(f"{100 * r[p] / r['s_per_update']:>10.1f}%" for p in PHASES)
-        print(f"{name:<7} {mode:<11} {r['updates_per_s']:>8.3f} {r['s_per_update']:>8.3f} {split}")
+        print(f"{name:<7} {mode:<13} {r['updates_per_s']:>8.3f} {r['s_per_update']:>8.3f} {split}")
     res = {(n, m): r for n, m, r in rows}
     out = []
     for name in args.presets.split(","):
@@ -126,6 +151,12 @@ def main() -> None:
             wm_share = u["wm"] / u["s_per_update"]
             print(f"{name}: world model {100 * wm_share:.0f}% of an URSA update")
             out.append(f"{name}_updates_per_s={u['updates_per_s']:.3f}")
+        b = res.get((name, "ursa-bptt"))
+        if u and b:
+            ratio = u["updates_per_s"] / b["updates_per_s"]
+            print(f"{name}: the REINFORCE update runs {ratio:.2f}x the updates/s of "
+                  f"backpropagation through the dynamics")
+            out.append(f"{name}_dynamics_ratio={ratio:.2f}")
     small = res.get(("small", "ursa"))
     first = f"updates_per_s={small['updates_per_s']:.3f}" if small else "updates_per_s=nan"
     print("RESULT " + " ".join([first, *out, f"device={args.device}"]))

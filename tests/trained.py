@@ -1,10 +1,12 @@
 """Trained point-env runs shared by the learning tests (learner, eval suite, evaluator service).
 
-One URSA run (``ursa-supervised``, φ = position) and one DayDreamer run (reward only) with the
-same learner recipe, env, budget and seed, trained once per test session, in two processes at
-once, by the single-process loop (:class:`ursa.serial.SerialLoop`) and saved as run directories
-(:func:`ursa.eval.loading.save_serial_run`), which ``ursa eval`` and the evaluator service read
-like runs of the services.
+Every run is the core's ``point`` preset (``ursa.config.preset("point", "point")``, the recipe
+``make run ARGS="--preset point --env point"`` runs), trained by the single-process loop
+(:class:`ursa.serial.SerialLoop`) for ``ursa.config.TRAIN_STEPS["point"]`` env steps and saved
+as a run directory (:func:`ursa.eval.loading.save_serial_run`), which ``ursa eval`` and the
+evaluator service read like runs of the services: URSA (``ursa-supervised``, φ = position) for
+each of :data:`SEEDS`, and one DayDreamer run (reward only) with the same recipe and budget.
+They train once per test session, two processes at once.
 
 ``URSA_TRAINED_POINT_DIR``: keep the runs there and reuse them while their recipe is unchanged
 (a ``recipe.json`` beside them says which recipe trained them).
@@ -21,73 +23,58 @@ from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 from typing import Any
 
-from ursa.config import Config, preset
-from ursa.learner_config import LearnerConfig, Mode
+from ursa.config import PREFILL, TRAIN_STEPS, Config, preset
+from ursa.learner_config import Mode
 from ursa.plain import to_plain
 
-POINT = LearnerConfig.tiny(
-    mode="ursa-supervised",
-    imag_starts=128,
-    model_lr=3e-4,
-    actor_lr=1e-4,
-    critic_lr=1e-4,
-    lagrange_lr=1e-4,
-    train_ratio=128.0,
-    discount=0.98,
-    cost_discount=0.9,
-    delta_scale=0.5,
-)
-"""The learner of the point-env runs: tiny sizes, faster learning rates, shorter horizons
-(γ 0.98, cost γ 0.9) so that a few thousand updates suffice, and the skill constraint enforced
-at δ/2 (``delta_scale``) so that executed skills land within δ; see docs/learner.md."""
-PREFILL = 2000
-"""Env steps of uniformly random actions before the first update."""
-SKILL_PERIOD = 250
-"""T: env steps per skill, in training and in the evaluations."""
-REPERTOIRE_SIZE = 1000
-"""N_R."""
-N_Z = 100
-"""N_z (sets δ)."""
-ENV_STEPS = 12_000
-"""Env steps of each run: the prefill, then 10,000 on-policy steps (train_ratio 128 with
-batches of 16 × 32: 3000 updates, 500 of them right after the prefill)."""
-SEED = 0
+SEEDS = (0, 1, 2)
+"""Seeds of the URSA runs the learning tests judge (median and worst seed)."""
+PRESET = "point"
+PREFILL_STEPS = PREFILL[PRESET]
+ENV_STEPS = TRAIN_STEPS[PRESET]
 
 
-def point_config(mode: Mode) -> Config:
-    """The core config of a run: the ``tiny`` point preset with :data:`POINT`'s learner."""
-    cfg = preset("tiny", "point")
-    lc = dataclasses.replace(POINT, mode=mode, skill_dim=cfg.learner.skill_dim)
+def point_config(mode: Mode, seed: int = 0) -> Config:
+    """The core config of a run: the ``point`` preset, ``mode``, the learner seeded ``seed``."""
+    cfg = preset(PRESET, "point")
     return dataclasses.replace(
-        cfg,
-        learner=lc,
-        repertoire=dataclasses.replace(cfg.repertoire, size=REPERTOIRE_SIZE, n_z=N_Z),
-        collector=dataclasses.replace(cfg.collector, skill_period=SKILL_PERIOD),
+        cfg, learner=dataclasses.replace(cfg.learner, mode=mode, seed=seed)
     )
+
+
+SKILL_PERIOD = point_config("ursa-supervised").collector.skill_period
+"""T: env steps per skill, in training and in the evaluations."""
+N_Z = point_config("ursa-supervised").repertoire.n_z
+"""N_z (sets δ)."""
+
+#: Run name -> (mode, seed).
+RUNS: dict[str, tuple[Mode, int]] = {
+    **{f"ursa-s{s}": ("ursa-supervised", s) for s in SEEDS},
+    "daydreamer": ("daydreamer", SEEDS[0]),
+}
 
 
 def recipe() -> dict[str, Any]:
     """Everything that decides what the runs learn (compared with a cache's ``recipe.json``)."""
-    modes: tuple[Mode, ...] = ("ursa-supervised", "daydreamer")
     return {
-        "config": {m: to_plain(point_config(m)) for m in modes},
-        "prefill": PREFILL,
+        "config": {name: to_plain(point_config(m, s)) for name, (m, s) in RUNS.items()},
+        "prefill": PREFILL_STEPS,
         "env_steps": ENV_STEPS,
-        "seed": SEED,
     }
 
 
-def _train(args: tuple[str, Mode, str]) -> tuple[str, float]:
+def _train(args: tuple[str, str]) -> tuple[str, float]:
     """Worker: train one run and save it; returns (run dir, seconds)."""
     import torch
 
     from ursa.eval.loading import SerialRecorder, make_serial_loop, save_serial_run
 
     torch.set_num_threads(1)
-    root, mode, name = args
-    cfg = point_config(mode)
+    root, name = args
+    mode, seed = RUNS[name]
+    cfg = point_config(mode, seed)
     start = time.perf_counter()
-    loop = make_serial_loop(cfg, prefill=PREFILL, seed=SEED)
+    loop = make_serial_loop(cfg, prefill=PREFILL_STEPS, seed=seed)
     rec = SerialRecorder(loop)
     loop.run(ENV_STEPS - loop.env_steps, callback=rec, callback_every=1000)
     run = save_serial_run(loop, cfg, Path(root) / name, rec)
@@ -95,31 +82,32 @@ def _train(args: tuple[str, Mode, str]) -> tuple[str, float]:
 
 
 def trained_point_runs(root: Path) -> dict[str, Any]:
-    """The two runs under ``root`` (``ursa``, ``daydreamer``), trained now unless ``root``
-    holds runs of the same recipe. Returns their run dirs and training seconds."""
+    """The runs of :data:`RUNS` under ``root`` (plus ``ursa``: the first seed's), trained now
+    unless ``root`` holds runs of the same recipe. Returns their run dirs and seconds."""
     root.mkdir(parents=True, exist_ok=True)
     stamp = root / "recipe.json"
     want = json.loads(json.dumps(recipe()))
-    names = {"ursa": "ursa-supervised", "daydreamer": "daydreamer"}
+    runs: dict[str, Path] = {name: root / name for name in RUNS}
+    runs["ursa"] = runs[f"ursa-s{SEEDS[0]}"]
     if stamp.exists() and json.loads(stamp.read_text()).get("recipe") == want:
         info = json.loads(stamp.read_text())
-        return {"runs": {n: root / n for n in names}, "seconds": info["seconds"], "cached": True}
-    jobs = [(str(root), mode, name) for name, mode in names.items()]
-    if (os.cpu_count() or 1) >= 2:  # the two trainings share nothing: one process each
-        ctx = multiprocessing.get_context("spawn")
-        with ProcessPoolExecutor(len(jobs), mp_context=ctx) as ex:
-            done = list(ex.map(_train, jobs))
-    else:
-        done = [_train(j) for j in jobs]
-    seconds = {name: s for (name, _), (_, s) in zip(names.items(), done, strict=True)}
+        return {"runs": runs, "seconds": info["seconds"], "cached": True}
+    jobs = [(str(root), name) for name in RUNS]
+    workers = min(len(jobs), max(1, (os.cpu_count() or 1)))
+    ctx = multiprocessing.get_context("spawn")
+    with ProcessPoolExecutor(workers, mp_context=ctx) as ex:
+        done = list(ex.map(_train, jobs))
+    seconds = {name: s for name, (_, s) in zip(RUNS, done, strict=True)}
+    seconds["ursa"] = seconds[f"ursa-s{SEEDS[0]}"]
     stamp.write_text(json.dumps({"recipe": want, "seconds": seconds}))
-    return {"runs": {n: root / n for n in names}, "seconds": seconds, "cached": False}
+    return {"runs": runs, "seconds": seconds, "cached": False}
 
 
-def cli_args(mode: Mode) -> list[str]:
+def cli_args(mode: Mode, seed: int = 0) -> list[str]:
     """Service flags that give a service the config of a run of ``mode``: the preset pickers,
-    then a tyro flag for each field that differs from the ``tiny`` point preset."""
-    base, cfg = preset("tiny", "point"), point_config(mode)
+    then a tyro flag for each field that differs from the ``tiny`` point preset (the test
+    stacks start services with ``--preset tiny --env point``)."""
+    base, cfg = preset("tiny", "point"), point_config(mode, seed)
     args = ["--preset", "tiny", "--env", "point"]
     for part in ("learner", "repertoire", "collector"):
         have, want = getattr(base, part), getattr(cfg, part)

@@ -15,7 +15,7 @@ from __future__ import annotations
 import torch
 from torch import nn
 
-from ursa.distributions import tanh_normal_sample, two_hot_mean
+from ursa.distributions import tanh_normal_logp, tanh_normal_rsample, two_hot_mean
 from ursa.learner_config import LearnerConfig
 from ursa.networks import MLP
 
@@ -122,10 +122,16 @@ class Actor(nn.Module):
 
     def sample(
         self, feat: torch.Tensor, skill: torch.Tensor, generator: torch.Generator | None
-    ) -> tuple[torch.Tensor, torch.Tensor]:
-        """Reparameterised action (..., A) and its log-density (...)."""
+    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """Reparameterised action (..., A), its log-density (...) and the pre-tanh sample
+        (..., A)."""
         mean, std = self(feat, skill)
-        return tanh_normal_sample(mean, std, generator)
+        return tanh_normal_rsample(mean, std, generator)
+
+    def log_prob(self, feat: torch.Tensor, skill: torch.Tensor, pre: torch.Tensor) -> torch.Tensor:
+        """log π(tanh(pre) | s, z) (...) for fixed pre-tanh samples (..., A) (score function)."""
+        mean, std = self(feat, skill)
+        return tanh_normal_logp(mean, std, pre)
 
     def mode(self, feat: torch.Tensor, skill: torch.Tensor) -> torch.Tensor:
         """Deterministic action tanh(mean) (..., A)."""
@@ -166,10 +172,12 @@ class SFCritic(nn.Module):
     def __init__(self, config: LearnerConfig, feat_dim: int, skill_dim: int) -> None:
         super().__init__()
         self.mlp = MLP(feat_dim + skill_dim, skill_dim, config.units, config.layers, zero_out=True)
+        self.residual = config.sf_residual
 
     def forward(self, feat: torch.Tensor, skill: torch.Tensor) -> torch.Tensor:
         """(..., F), (..., D) -> (..., D)."""
-        return skill + self.mlp(torch.cat([feat, skill], -1))
+        out = self.mlp(torch.cat([feat, skill], -1))
+        return skill + out if self.residual else out
 
 
 class Multiplier(nn.Module):

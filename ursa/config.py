@@ -1,7 +1,8 @@
 """The whole core config, assembled from each component's config, and its presets.
 
-Presets (``tiny`` for tests, ``small`` for a CPU, ``paper`` for the paper's sizes) change sizes,
-never code paths. Every service reads the same ``Config`` and saves what it resolved.
+Presets (``tiny`` for tests, ``point`` the point-env learning recipe, ``small`` for a CPU,
+``paper`` for the paper's sizes) change sizes and rates, never code paths. Every service reads
+the same ``Config`` and saves what it resolved.
 """
 
 from __future__ import annotations
@@ -14,9 +15,10 @@ from ursa.envs.a1 import A1Config
 from ursa.envs.base import ResetFreeEnv
 from ursa.envs.point import PointConfig
 from ursa.learner_config import LearnerConfig, learner_preset
+from ursa.pace import PaceMode
 from ursa.repertoire import RepertoireConfig
 
-PresetName = Literal["tiny", "small", "paper"]
+PresetName = Literal["tiny", "point", "small", "paper"]
 EnvName = Literal["a1", "point"]
 
 #: Dimension of each provided feature function, by env (the learned one is ``vae``).
@@ -40,6 +42,12 @@ class CollectorConfig:
     """How often a collector publishes its stats (joint angles for the live view included)."""
     violation_window: int = 1000
     """Steps in the sliding window of the safety-violation rate."""
+    pace: PaceMode = "wait"
+    """Rate limiter (``ursa.pace``): ``wait`` (simulation) pauses collectors while the learner's
+    replay ratio is more than ``pace_tolerance`` below its ``train_ratio``; ``free`` (a real
+    robot) never waits, and the learner reports the ratio it reaches."""
+    pace_tolerance: float = 0.1
+    """Relative shortfall of the replay ratio below its target before collectors wait."""
 
 
 @dataclass(frozen=True)
@@ -76,8 +84,16 @@ class Config:
         return self.repertoire.dim
 
 
-_REPERTOIRE_SIZE = {"tiny": 300, "small": 2000, "paper": 5000}
-_SKILL_PERIOD = {"tiny": 100, "small": 250, "paper": 250}
+# The one preset table: every named recipe's sizes (the learner's are in ``learner_preset``).
+_REPERTOIRE_SIZE = {"tiny": 300, "point": 1000, "small": 2000, "paper": 5000}
+_SKILL_PERIOD = {"tiny": 100, "point": 250, "small": 250, "paper": 250}
+_CHUNK_LEN = {"tiny": 25, "point": 25, "small": 50, "paper": 50}
+PREFILL = {"tiny": 2000, "point": 2000, "small": 2000, "paper": 2000}
+"""Env steps of uniformly random actions before the first update (the serial loop; the
+learner service's ``--min-replay``)."""
+TRAIN_STEPS = {"point": 12_000}
+"""Env steps of a recipe shown to learn (the prefill included): the point recipe's 12,000 give
+3000 updates at train_ratio 128 with batches of 16 × 32."""
 
 
 def with_feature(cfg: Config, feature: str) -> Config:
@@ -105,8 +121,7 @@ def preset(name: PresetName, env: EnvName | None = None, feature: str | None = N
     cfg = Config(
         preset=name,
         env=env_name,
-        collector=CollectorConfig(skill_period=_SKILL_PERIOD[name],
-                                  chunk_len=25 if name == "tiny" else 50),
+        collector=CollectorConfig(skill_period=_SKILL_PERIOD[name], chunk_len=_CHUNK_LEN[name]),
         repertoire=RepertoireConfig(size=_REPERTOIRE_SIZE[name]),
         learner=learner_preset(name),
     )

@@ -125,10 +125,35 @@ def tanh_normal_sample(
 
     The log-density includes the tanh Jacobian, so −log π(a) is an unbiased entropy estimate.
     """
+    a, logp, _ = tanh_normal_rsample(mean, std, generator)
+    return a, logp
+
+
+def tanh_normal_rsample(
+    mean: torch.Tensor, std: torch.Tensor, generator: torch.Generator | None = None
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """:func:`tanh_normal_sample` that also returns the pre-tanh sample u (..., A), which
+    :func:`tanh_normal_logp` scores later (REINFORCE)."""
     eps = torch.randn(mean.shape, generator=generator, device=mean.device, dtype=mean.dtype)
     u = mean + std * eps
     a = torch.tanh(u)
     logp_u = (-0.5 * eps.pow(2) - torch.log(std) - 0.5 * math.log(2.0 * math.pi)).sum(-1)
     # log(1 − tanh²(u)) = 2·(log 2 − u − softplus(−2u)), stable for large |u|
     log_det = (2.0 * (math.log(2.0) - u - F.softplus(-2.0 * u))).sum(-1)
-    return a, logp_u - log_det
+    return a, logp_u - log_det, u
+
+
+def tanh_normal_logp(mean: torch.Tensor, std: torch.Tensor, u: torch.Tensor) -> torch.Tensor:
+    """Log-density (...) of the action a = tanh(u) under tanh(N(mean, std²)), for a fixed
+    pre-tanh sample u (..., A): differentiable in mean and std (the score function), while
+    :func:`tanh_normal_sample`'s log-density is of a reparameterised sample."""
+    u = u.detach()
+    z = (u - mean) / std
+    logp_u = (-0.5 * z.pow(2) - torch.log(std) - 0.5 * math.log(2.0 * math.pi)).sum(-1)
+    log_det = (2.0 * (math.log(2.0) - u - F.softplus(-2.0 * u))).sum(-1)
+    return logp_u - log_det
+
+
+def normal_entropy(std: torch.Tensor) -> torch.Tensor:
+    """Entropy (...) of the pre-tanh Gaussian N(·, diag std²) (..., A): Σ log std + A/2·log 2πe."""
+    return (torch.log(std) + 0.5 * math.log(2.0 * math.pi * math.e)).sum(-1)

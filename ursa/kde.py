@@ -112,6 +112,33 @@ def kde_sample(
     return out
 
 
+def kde_sample_in_box(
+    points: np.ndarray,
+    cov: np.ndarray,
+    n: int,
+    rng: np.random.Generator,
+    low: np.ndarray,
+    high: np.ndarray,
+    tries: int = 20,
+) -> np.ndarray:
+    """n samples (n, D) of the KDE truncated to the box [low, high] (D,) each: draws that land
+    outside are drawn again (at most ``tries`` rounds, then clipped into the box).
+
+    A provided feature function has a reachable range (the point env's arena); the kernels of
+    the archive's edge points reach past it, and a skill outside it cannot be executed. The
+    first round is :func:`kde_sample`'s draw with the same generator calls.
+    """
+    lo, hi = np.asarray(low, np.float64), np.asarray(high, np.float64)
+    c = cholesky(regularize_cov(cov), lower=True)
+    out = kde_sample(points, cov, n, rng, chol=c)
+    for _ in range(tries):
+        bad = ~((out >= lo) & (out <= hi)).all(axis=1)
+        if not bad.any():
+            break
+        out[bad] = kde_sample(points, cov, int(bad.sum()), rng, chol=c)
+    return np.clip(out, lo, hi)
+
+
 def _sq_mahalanobis_chunks(
     points: np.ndarray, cov: np.ndarray, x: np.ndarray
 ) -> Iterator[tuple[int, int, np.ndarray]]:

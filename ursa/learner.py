@@ -22,11 +22,12 @@ See docs/learner.md for the choices and their reasons.
 
 from __future__ import annotations
 
+import contextlib
 import copy
 import os
 import tempfile
 import time
-from collections.abc import Mapping
+from collections.abc import Iterator, Mapping
 from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any, Protocol
@@ -47,7 +48,7 @@ from ursa.agent import (
     mahalanobis,
     whitened_sq,
 )
-from ursa.distributions import two_hot_loss2, two_hot_mean
+from ursa.distributions import normal_entropy, tanh_normal_logp, two_hot_loss2, two_hot_mean
 from ursa.learner_config import LearnerConfig
 from ursa.policy import pack_policy_weights
 from ursa.vae import VAE
@@ -82,18 +83,42 @@ class SkillSnapshot:
     """VAE inputs (N, F) of the stored skills (``ursa`` mode), else None."""
     version: int = 0
     """Encoder version the skills are encoded with."""
+    box: tuple[np.ndarray, np.ndarray] | None = None
+    """(low, high) (D,) each: the skill box of the feature function (``ursa.bounds``); KDE
+    draws are truncated to it. None: the untruncated KDE."""
 
     @classmethod
     def from_repertoire(cls, rep: _RepertoireLike) -> SkillSnapshot:
-        """Snapshot of an ``ursa.repertoire.Repertoire``."""
+        """Snapshot of an ``ursa.repertoire.Repertoire`` (its ``bounds`` become ``box``)."""
         inputs = rep.inputs
+        bounds = getattr(rep, "bounds", None)
         return cls(
             skills=np.asarray(rep.skills, np.float64),
             cov=np.asarray(rep.cov, np.float64),
             delta=float(rep.delta()),
             inputs=np.asarray(inputs, np.float64) if inputs.shape[-1] else None,
             version=int(rep.encoder_version),
+            box=None if bounds is None else (np.asarray(bounds.low), np.asarray(bounds.high)),
         )
+
+
+@dataclass(frozen=True)
+class _SkillContext:
+    """The skills of one imagination: z (N, D), the whitening A (D, D) of δ's metric and the
+    enforced δ (``delta_scale`` · δ)."""
+
+    skill: torch.Tensor
+    whiten: torch.Tensor
+    delta: float
+
+
+@dataclass(frozen=True)
+class _Losses:
+    """The losses of one imagination, each minimised by its own optimiser step."""
+
+    actor: torch.Tensor
+    critic: torch.Tensor
+    multipliers: torch.Tensor | None
 
 
 def _slow_copy(net: nn.Module) -> nn.Module:
@@ -224,21 +249,58 @@ class Learner:
 
     # --- training ------------------------------------------------------------------------------
 
+    @contextlib.contextmanager
+    def _phase(self, name: str, times: dict[str, float]) -> Iterator[None]:
+        """Time one phase of the update (synchronising the device when profiling)."""
+        t0 = time.perf_counter()
+        yield
+        self._sync()
+        times[name] = time.perf_counter() - t0
+
     def train_step(
         self, batch: dict[str, np.ndarray], skills: SkillSnapshot | None = None
     ) -> dict[str, float]:
         """One update on a replay batch (dict of (B, T, ...) arrays with ``is_first``) with the
         repertoire snapshot ``skills`` (required unless ``daydreamer``). Returns scalar metrics,
-        including the seconds spent in each phase (``time/*``)."""
+        including the seconds spent in each phase (``time/*``).
+
+        Each phase owns its loss and its optimiser step: world model, imagination (returns and
+        the losses of actor, critics and multipliers), actor, critics, multipliers, VAE.
+        """
         c = self.config
         if c.uses_skills and skills is None:
             raise ValueError(f"mode {c.mode!r} needs a SkillSnapshot")
         times: dict[str, float] = {}
         metrics: dict[str, torch.Tensor | float] = {}
+        with self._phase("wm", times):
+            h, z = self._world_model_step(self._tensors(batch), metrics)
+        with self._phase("imagination", times):
+            ctx = self._skill_context(h.shape[0], skills)
+            losses = self._imagination_losses(h, z, ctx, metrics)
+        with self._phase("actor", times):
+            self._actor_step(losses.actor, metrics)
+        with self._phase("critics", times):
+            self._critic_step(losses.critic)
+        with self._phase("multipliers", times):
+            self._multiplier_step(losses.multipliers)
+        with self._phase("vae", times):
+            if self.vae is not None and skills is not None and skills.inputs is not None:
+                metrics.update(self._vae_step(skills.inputs))
+        self.updates += 1
+        if self.vae is not None and self.updates % c.vae_publish_every == 0:
+            self.publish_encoder()
+        out = {k: float(v) for k, v in metrics.items()}
+        out.update({f"time/{k}": v for k, v in times.items()})
+        out["updates"] = float(self.updates)
+        out["vae_version"] = float(self.vae_version)
+        return out
 
-        # 1. world model
-        t0 = time.perf_counter()
-        data = self._tensors(batch)
+    def _world_model_step(
+        self, data: dict[str, torch.Tensor], metrics: dict[str, torch.Tensor | float]
+    ) -> tuple[torch.Tensor, torch.Tensor]:
+        """World-model loss and step on the batch; returns the imagination's start states
+        h (N, deter), z (N, S·K): all B·T posterior states, or ``imag_starts`` of them."""
+        c = self.config
         wm_loss, wm_metrics, post = self.wm.loss(data, self._phi_targets(data), self.gen)
         self.model_opt.zero_grad(set_to_none=True)
         wm_loss.backward()
@@ -246,49 +308,78 @@ class Learner:
             self.model_opt, list(self.wm.parameters()), c.model_clip
         )
         metrics.update(wm_metrics)
-        self._sync()
-        times["wm"] = time.perf_counter() - t0
-
-        # 2. imagination from the posterior states, one KDE skill per start state
-        t0 = time.perf_counter()
         h = post["h"].detach().flatten(0, 1)
         z = post["z"].detach().flatten(0, 1)
         n = h.shape[0]
         if 0 < c.imag_starts < n:
             idx = torch.randperm(n, generator=self.gen, device=self.device)[: c.imag_starts]
-            h, z, n = h[idx], z[idx], c.imag_starts
-        if self.skill_dim:
-            assert skills is not None
-            zs = kde.kde_sample(skills.skills, skills.cov, n, self.np_rng)
-            skill = torch.as_tensor(zs, dtype=torch.float32, device=self.device)
-            whiten = torch.as_tensor(
-                kde.whitening_matrix(kde.regularize_cov(skills.cov)),
-                dtype=torch.float32,
-                device=self.device,
+            h, z = h[idx], z[idx]
+        return h, z
+
+    def _skill_context(self, n: int, skills: SkillSnapshot | None) -> _SkillContext:
+        """One KDE skill per start state, the whitening of δ's metric and the enforced δ."""
+        c = self.config
+        if not self.skill_dim:
+            return _SkillContext(
+                torch.zeros(n, 0, device=self.device), torch.zeros(0, 0, device=self.device), 0.0
             )
-            delta = c.delta_scale * float(skills.delta)
+        assert skills is not None
+        if skills.box is None:
+            zs = kde.kde_sample(skills.skills, skills.cov, n, self.np_rng)
         else:
-            skill = torch.zeros(n, 0, device=self.device)
-            whiten = torch.zeros(0, 0, device=self.device)
-            delta = 0.0
-        traj = self.wm.imagine(
-            h, z, lambda feat: self.actor.sample(feat, skill, self.gen), c.imag_horizon, self.gen
+            zs = kde.kde_sample_in_box(skills.skills, skills.cov, n, self.np_rng, *skills.box)
+        whiten = kde.whitening_matrix(kde.regularize_cov(skills.cov))
+        return _SkillContext(
+            torch.as_tensor(zs, dtype=torch.float32, device=self.device),
+            torch.as_tensor(whiten, dtype=torch.float32, device=self.device),
+            c.delta_scale * float(skills.delta),
         )
-        # Returns bootstrap from the online critics (DreamerV3, QDAC-MB); the slow critics only
-        # regularise the critics' outputs. One critic forward serves the actor's returns (its
-        # gradient reaches the states) and the critic losses (gradient to the critic weights).
+
+    def _imagination_losses(
+        self,
+        h: torch.Tensor,
+        z: torch.Tensor,
+        ctx: _SkillContext,
+        metrics: dict[str, torch.Tensor | float],
+    ) -> _Losses:
+        """Imagine H steps from (h, z) with one skill each, compute the λ-returns of V, ψ and C
+        and the losses of the actor, the critics and the multipliers.
+
+        ``actor_grad="dynamics"``: the rollout keeps its graph and the actor's loss is −J, whose
+        gradient reaches the actions through the model and the online critics.
+        ``"reinforce"``: the rollout and the returns carry no graph; the actor's loss is
+        −log π(a | s, z) · sg(J(returns) − J(critics at s)), the baseline being J of the online
+        critics' predictions at the same state with the same λs.
+        """
+        c = self.config
+        reinforce = c.actor_grad == "reinforce"
+        skill, whiten, delta = ctx.skill, ctx.whiten, ctx.delta
+        hor, bins = c.imag_horizon, self.wm.bins
+
+        def act(feat: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+            return self.actor.sample(feat, skill, self.gen)
+
+        with torch.no_grad() if reinforce else contextlib.nullcontext():
+            traj = self.wm.imagine(h, z, act, hor, self.gen)
+            pred = self.wm.predict(traj.feat[1:])
         feat = traj.feat
-        hor = c.imag_horizon
         sk = skill.unsqueeze(0).expand(hor + 1, -1, -1)
         fd, skd = feat[:-1].detach(), sk[:-1]
-        bins = self.wm.bins
-        pred = self.wm.predict(feat[1:])
+
+        def grad_or_not(x: torch.Tensor) -> torch.Tensor:
+            # REINFORCE's returns are targets only; through the dynamics they are the objective
+            return x.detach() if reinforce else x
+
+        # Returns bootstrap from the online critics (DreamerV3, QDAC-MB); the slow critics only
+        # regularise the critics' outputs. One critic forward serves the returns and the critic
+        # losses.
         v_logits = self.value.logits(feat, sk)
-        ret_v = lambda_return(
-            pred["reward"], two_hot_mean(v_logits, bins), c.discount, c.return_lambda
-        )
+        v_all = two_hot_mean(v_logits, bins)
+        ret_v = lambda_return(pred["reward"], grad_or_not(v_all), c.discount, c.return_lambda)
         self.retnorm_v.update(ret_v)
-        objective = ret_v / self.retnorm_v.scale()
+        scale_v = self.retnorm_v.scale()
+        objective = ret_v / scale_v
+        baseline = v_all[:-1].detach() / scale_v
         with torch.no_grad():
             slow_v = self.value_slow(fd, skd)
         critic_loss = two_hot_loss2(v_logits[:-1], ret_v, slow_v, c.slow_critic_reg, bins)
@@ -301,20 +392,24 @@ class Learner:
             assert self.sf_slow is not None and self.cost_slow is not None
             m_all = self.sf(feat, sk)
             ret_m = lambda_return(
-                (1.0 - c.discount) * pred["phi"], m_all, c.discount, c.return_lambda
+                (1.0 - c.discount) * pred["phi"], grad_or_not(m_all), c.discount, c.return_lambda
             )
             dist = mahalanobis(ret_m - skill, whiten)
             c_logits = self.cost.logits(feat, sk)
-            ret_c = lambda_return(
-                pred["cost"], two_hot_mean(c_logits, bins), c.gamma_cost, c.return_lambda
-            )
+            c_all = two_hot_mean(c_logits, bins)
+            ret_c = lambda_return(pred["cost"], grad_or_not(c_all), c.gamma_cost, c.return_lambda)
             self.retnorm_c.update(ret_c)
+            scale_c = self.retnorm_c.scale()
             logit1 = self.lam1.logit(fd, skd)
             logit2 = self.lam2.logit(fd, skd)
             lam1, lam2 = torch.sigmoid(logit1).detach(), torch.sigmoid(logit2).detach()
-            objective = actor_objective(
-                objective, dist, delta, ret_c / self.retnorm_c.scale(), lam1, lam2
-            )
+            objective = actor_objective(objective, dist, delta, ret_c / scale_c, lam1, lam2)
+            if reinforce:
+                with torch.no_grad():
+                    base_dist = mahalanobis(m_all[:-1] - skill, whiten)
+                baseline = actor_objective(
+                    baseline, base_dist, delta, c_all[:-1].detach() / scale_c, lam1, lam2
+                )
             with torch.no_grad():
                 slow_m = self.sf_slow(fd, skd)
                 slow_c = self.cost_slow(fd, skd)
@@ -344,35 +439,44 @@ class Learner:
                     "imag/distance": dist.detach().mean(),
                     "imag/within_delta": 1.0 - viol1.mean(),
                     "imag/cost_return": ret_c.detach().mean(),
-                    "ret/cost_scale": self.retnorm_c.scale(),
+                    "ret/cost_scale": scale_c,
                     "delta": delta,
                 }
             )
-        entropy = -traj.logp
-        actor_loss = -(weight * objective).mean() - c.actor_entropy * (weight * entropy).mean()
-        critic_loss = (weight * critic_loss).mean()
-        self._sync()
-        times["imagination"] = time.perf_counter() - t0
-
-        # 3. actor: backprop through the dynamics; only the actor's parameters get gradients
-        t0 = time.perf_counter()
-        params = list(self.actor.parameters())
-        grads = torch.autograd.grad(actor_loss, params, retain_graph=True)
-        for p, g in zip(params, grads, strict=True):
-            p.grad = g
-        metrics["actor/grad_norm"] = _clip_step(self.actor_opt, params, c.ac_clip)
-        self.actor_opt.zero_grad(set_to_none=True)
+        if reinforce:
+            mean, std = self.actor(fd, skd)
+            logp = tanh_normal_logp(mean, std, traj.pre)
+            adv = (objective - baseline).detach()
+            entropy_reg = normal_entropy(std)
+            actor_loss = -(weight * logp * adv).mean()
+            metrics["actor/advantage"] = adv.abs().mean()
+            entropy = -logp.detach()
+        else:
+            entropy = -traj.logp
+            entropy_reg = entropy
+            actor_loss = -(weight * objective).mean()
+        actor_loss = actor_loss - c.actor_entropy * (weight * entropy_reg).mean()
         metrics["actor/loss"] = actor_loss.detach()
         metrics["actor/entropy"] = entropy.detach().mean()
         metrics["ret/value"] = ret_v.detach().mean()
-        metrics["ret/value_scale"] = self.retnorm_v.scale()
-        self._sync()
-        times["actor"] = time.perf_counter() - t0
+        metrics["ret/value_scale"] = scale_v
+        return _Losses(actor_loss, (weight * critic_loss).mean(), lam_loss)
 
-        # 4. critics (gradients to their own weights only), slow copies follow by EMA
-        t0 = time.perf_counter()
+    def _actor_step(self, loss: torch.Tensor, metrics: dict[str, torch.Tensor | float]) -> None:
+        """Actor step: only the actor's parameters get gradients (the critics' and multipliers'
+        graphs are kept for their own steps)."""
+        params = list(self.actor.parameters())
+        grads = torch.autograd.grad(loss, params, retain_graph=True)
+        for p, g in zip(params, grads, strict=True):
+            p.grad = g
+        metrics["actor/grad_norm"] = _clip_step(self.actor_opt, params, self.config.ac_clip)
+        self.actor_opt.zero_grad(set_to_none=True)
+
+    def _critic_step(self, loss: torch.Tensor) -> None:
+        """V, ψ, C step (gradients to their own weights only); the slow copies follow by EMA."""
+        c = self.config
         cparams = [p for m in self.critics for p in m.parameters()]
-        grads = torch.autograd.grad(critic_loss, cparams)
+        grads = torch.autograd.grad(loss, cparams)
         for p, g in zip(cparams, grads, strict=True):
             p.grad = g
         _clip_step(self.critic_opt, cparams, c.ac_clip)
@@ -382,34 +486,15 @@ class Learner:
             _ema(self.sf_slow, self.sf, c.slow_critic_fraction)
         if self.cost_slow is not None and self.cost is not None:
             _ema(self.cost_slow, self.cost, c.slow_critic_fraction)
-        self._sync()
-        times["critics"] = time.perf_counter() - t0
 
-        # 5. multipliers (their inputs are detached: the graph holds only their own weights)
-        t0 = time.perf_counter()
-        if lam_loss is not None and self.lagrange_opt is not None:
-            self.lagrange_opt.zero_grad(set_to_none=True)
-            lam_loss.backward()
-            lam_params = [p for m in (self.lam1, self.lam2) if m for p in m.parameters()]
-            _clip_step(self.lagrange_opt, lam_params, c.ac_clip)
-        self._sync()
-        times["multipliers"] = time.perf_counter() - t0
-
-        # 6. VAE on the repertoire's inputs (ursa mode)
-        t0 = time.perf_counter()
-        if self.vae is not None and skills is not None and skills.inputs is not None:
-            metrics.update(self._vae_step(skills.inputs))
-        self._sync()
-        times["vae"] = time.perf_counter() - t0
-
-        self.updates += 1
-        if self.vae is not None and self.updates % c.vae_publish_every == 0:
-            self.publish_encoder()
-        out = {k: float(v) for k, v in metrics.items()}
-        out.update({f"time/{k}": v for k, v in times.items()})
-        out["updates"] = float(self.updates)
-        out["vae_version"] = float(self.vae_version)
-        return out
+    def _multiplier_step(self, loss: torch.Tensor | None) -> None:
+        """λ1, λ2 step (their inputs are detached: the graph holds only their own weights)."""
+        if loss is None or self.lagrange_opt is None:
+            return
+        self.lagrange_opt.zero_grad(set_to_none=True)
+        loss.backward()
+        lam_params = [p for m in (self.lam1, self.lam2) if m for p in m.parameters()]
+        _clip_step(self.lagrange_opt, lam_params, self.config.ac_clip)
 
     def _vae_step(self, inputs: np.ndarray) -> dict[str, torch.Tensor]:
         assert self.vae is not None and self.vae_opt is not None

@@ -14,7 +14,8 @@ from dataclasses import dataclass
 from typing import Literal
 
 Mode = Literal["ursa", "ursa-supervised", "daydreamer"]
-LearnerPresetName = Literal["tiny", "small", "paper"]
+ActorGrad = Literal["dynamics", "reinforce"]
+LearnerPresetName = Literal["tiny", "point", "small", "paper"]
 
 
 @dataclass(frozen=True)
@@ -79,6 +80,9 @@ class LearnerConfig:
     """The actor and λ1 enforce ‖(1−γ)ψ − z‖ ≤ ``delta_scale`` · δ. Below 1 it keeps a margin:
     the reward term pulls the actor to the constraint's boundary, so model error and the
     transit to a new skill land about half the executed skills outside δ when the margin is 0."""
+    sf_residual: bool = True
+    """Parameterise the SF critic as m = z + MLP(s, z) ("the skill is executed" is the initial
+    guess) instead of m = MLP(s, z) (0 at initialisation)."""
     return_lambda: float = 0.95
     """λ of the TD(λ) returns."""
     slow_critic_fraction: float = 0.02
@@ -92,6 +96,11 @@ class LearnerConfig:
     """Returns are divided by max(limit, P95 − P5)."""
 
     # --- actor ---------------------------------------------------------------------------------
+    actor_grad: ActorGrad = "dynamics"
+    """How the actor's gradient is estimated: ``dynamics`` backpropagates J through the imagined
+    dynamics (DreamerV1/2, QDAC-MB); ``reinforce`` rolls the model out without gradients and
+    weights log π(a | s, z) by the advantage J(returns) − J(critics at s) (DreamerV3's default),
+    which costs a fraction of the update (docs/learner.md)."""
     actor_entropy: float = 3e-4
     """Entropy bonus of the actor (on the normalised objective)."""
     actor_min_std: float = 0.1
@@ -146,6 +155,8 @@ class LearnerConfig:
             raise ValueError("bins ≥ 2 and batch_size, seq_len, imag_horizon ≥ 1 are required")
         if not 0.0 < self.discount < 1.0 or not 0.0 <= self.cost_discount < 1.0:
             raise ValueError("discounts must lie in (0, 1)")
+        if self.actor_grad not in ("dynamics", "reinforce"):
+            raise ValueError(f"unknown actor_grad {self.actor_grad!r}")
         if not 0.0 < self.delta_scale <= 1.0:
             raise ValueError("delta_scale must lie in (0, 1]")
 
@@ -176,6 +187,25 @@ class LearnerConfig:
             lagrange_units=32,
             vae_units=32,
             vae_batch=128,
+        )
+        return dataclasses.replace(base, **overrides)  # type: ignore[arg-type]
+
+    @classmethod
+    def point(cls, **overrides: object) -> LearnerConfig:
+        """The point-env learning recipe (the learning tests' and ``--preset point``): ``tiny``
+        sizes with faster learning rates, 128 imagination starts, a high replay ratio, shorter
+        horizons (γ 0.98, cost γ 0.9) so that 3000 updates suffice, the skill constraint enforced
+        at δ/2 and the REINFORCE actor; docs/learner.md gives the measurements behind each."""
+        base = cls.tiny(
+            imag_starts=128,
+            model_lr=3e-4,
+            actor_lr=1e-4,
+            critic_lr=1e-4,
+            lagrange_lr=1e-4,
+            train_ratio=128.0,
+            discount=0.98,
+            cost_discount=0.9,
+            delta_scale=0.5,
         )
         return dataclasses.replace(base, **overrides)  # type: ignore[arg-type]
 
@@ -221,6 +251,7 @@ def learner_preset(name: LearnerPresetName, **overrides: object) -> LearnerConfi
     """The learner config of a preset, with optional field overrides."""
     factory = {
         "tiny": LearnerConfig.tiny,
+        "point": LearnerConfig.point,
         "small": LearnerConfig.small,
         "paper": LearnerConfig.paper,
     }

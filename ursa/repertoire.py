@@ -605,9 +605,14 @@ class Repertoire:
     def sample(self, n: int, rng: np.random.Generator) -> np.ndarray:
         """n skills (n, D) from q = KDE(R) with the current Σ; N(0, I) while empty.
 
-        Same draws as ``kde.kde_sample(self.skills, self.cov, n, rng)``, without copying the
-        archive or factorizing Σ again."""
+        Without ``bounds``: the same draws as ``kde.kde_sample(self.skills, self.cov, n, rng)``,
+        without copying the archive or factorizing Σ again. With ``bounds``: the KDE truncated
+        to the skill box (``kde.kde_sample_in_box``): a skill outside the range of the feature
+        function cannot be executed."""
         self._fresh()
+        if self.bounds is not None:
+            return kde.kde_sample_in_box(self.skills, self._cov, n, rng,
+                                         np.asarray(self.bounds.low), np.asarray(self.bounds.high))
         if self._n == 0:
             return kde.kde_sample(np.zeros((0, self.config.dim)), self._cov, n, rng, self._chol)
         centres = self._p[self._id_order()[rng.integers(0, self._n, size=n)]]

@@ -21,7 +21,8 @@ from typing import Any
 
 import numpy as np
 
-from ursa import kde
+from ursa import scoring
+from ursa.bounds import Box
 from ursa.envs.base import ResetFreeEnv
 from ursa.learner import Learner, SkillSnapshot
 from ursa.learner_config import LearnerConfig
@@ -88,22 +89,24 @@ def evaluate_skills(
     steps: int,
     metric_cov: np.ndarray,
     feature: str = "position",
-    explore: bool = True,
+    explore: bool = scoring.EXPLORE,
     rng: np.random.Generator | None = None,
     record: bool = False,
+    settle: int | None = None,
 ) -> EvalResult:
-    """Run each skill (K, D) for ``steps`` env steps in turn, without resets.
+    """Run each skill (K, D) for ``steps`` env steps in turn, without resets, and score it by
+    the rule of :mod:`ursa.scoring` (policy mode, settle period, distance in the metric of δ).
 
     ``policy`` None acts uniformly at random. The achieved skill is the mean of φ over the
-    steps (the policy's φ, i.e. its VAE encoder in ``ursa`` mode, applied to
-    ``info["features"][feature]``); distances use Σ = ``metric_cov``, the metric of δ.
-    ``explore`` (default) runs the stochastic policy π_z whose skill is E_π[φ] (Definition 2.1;
-    it is also what the actor is trained as); False takes tanh(mean) actions. ``record`` keeps
-    the observations and actions (replay convention: the observation after
-    each action).
+    steps after ``settle`` (default :func:`ursa.scoring.settle_steps`) (the policy's φ, i.e. its
+    VAE encoder in ``ursa`` mode, applied to ``info["features"][feature]``); distances use
+    Σ = ``metric_cov``, the metric of δ. ``explore`` True runs the stochastic policy π_z
+    instead of its mode. The violation rate counts every step. ``record`` keeps the
+    observations and actions (replay convention: the observation after each action).
     """
     rng = rng or np.random.default_rng(0)
     skills = np.asarray(skills, np.float64)
+    settle = scoring.settle_steps(steps) if settle is None else settle
     k = len(skills)
     obs, _ = env.reset()
     carry: PolicyCarry | None = policy.initial_carry() if policy is not None else None
@@ -128,9 +131,8 @@ def evaluate_skills(
             viol[i] += 0.0 if info["safe"] else 1.0
         x = np.stack(inputs)
         phi = policy.features(x) if policy is not None else x
-        achieved[i] = phi.mean(0)
-    whiten = kde.whitening_matrix(kde.regularize_cov(metric_cov))
-    distance = np.linalg.norm((achieved - skills) @ whiten.T, axis=-1)
+        achieved[i] = scoring.achieved_skill(phi, settle)
+    distance = scoring.skill_distance(achieved, skills, metric_cov)
     return EvalResult(skills, achieved, distance, returns, viol / steps, all_obs, all_act)
 
 
@@ -142,6 +144,9 @@ class SerialLoop:
     learner_config: LearnerConfig
     config: SerialConfig = field(default_factory=SerialConfig)
     stream_id: str = "serial-0"
+    skill_box: Box | None = None
+    """The skill box of the feature function (``ursa.bounds``): the repertoire admits no skill
+    outside it and truncates its KDE draws to it; None: no bounds."""
 
     def __post_init__(self) -> None:
         c, lc = self.config, self.learner_config
@@ -162,7 +167,8 @@ class SerialLoop:
                     dim=d,
                     n_z=c.n_z,
                     input_dim=self.feat_in_dim if lc.mode == "ursa" else None,
-                )
+                ),
+                bounds=self.skill_box,
             )
         self.replay = Replay(c.replay_capacity)
         self.rng = np.random.default_rng(c.seed)

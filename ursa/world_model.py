@@ -162,11 +162,13 @@ class Encoder(nn.Module):
 @dataclass
 class Imagined:
     """An imagined rollout from N start states: ``feat`` (H+1, N, F) the model states s_0..s_H,
-    ``action`` (H, N, A) and ``logp`` (H, N) of the actions taken at s_0..s_{H−1}."""
+    ``action`` (H, N, A), ``logp`` (H, N) and pre-tanh samples ``pre`` (H, N, A) of the actions
+    taken at s_0..s_{H−1}."""
 
     feat: torch.Tensor
     action: torch.Tensor
     logp: torch.Tensor
+    pre: torch.Tensor
 
 
 class WorldModel(nn.Module):
@@ -257,21 +259,25 @@ class WorldModel(nn.Module):
         self,
         h: torch.Tensor,
         z: torch.Tensor,
-        policy: Callable[[torch.Tensor], tuple[torch.Tensor, torch.Tensor]],
+        policy: Callable[[torch.Tensor], tuple[torch.Tensor, torch.Tensor, torch.Tensor]],
         horizon: int,
         generator: torch.Generator | None,
     ) -> Imagined:
         """Roll the prior forward ``horizon`` steps from start states h (N, deter), z (N, S·K).
 
-        ``policy(feat (N, F)) -> (action (N, A), logp (N,))``; gradients flow through the
-        dynamics (straight-through latents) back to the actions.
+        ``policy(feat (N, F)) -> (action (N, A), logp (N,), pre-tanh (N, A))``; gradients flow
+        through the dynamics (straight-through latents) back to the actions unless the caller
+        runs it under ``torch.no_grad``.
         """
         feats = [self.feat(h, z)]
-        actions, logps = [], []
+        actions, logps, pres = [], [], []
         for _ in range(horizon):
-            a, logp = policy(feats[-1])
+            a, logp, pre = policy(feats[-1])
             h, z = self.rssm.img_step(h, z, a, generator)
             feats.append(self.feat(h, z))
             actions.append(a)
             logps.append(logp)
-        return Imagined(torch.stack(feats), torch.stack(actions), torch.stack(logps))
+            pres.append(pre)
+        return Imagined(
+            torch.stack(feats), torch.stack(actions), torch.stack(logps), torch.stack(pres)
+        )

@@ -2,6 +2,7 @@
 
 Subscribes:  ursa/{run}/learner/weights (PolicyWeights, latest; also queried at start)
              ursa/{run}/learner/encoder (EncoderWeights, latest)
+             ursa/{run}/learner/stats (Stats: the rate limiter's budget, ``ursa.pace``)
 Queries:     ursa/{run}/repertoire/sample (SkillRequest -> SkillReply), every T steps
 Publishes:   ursa/{run}/collector/transitions/{cid} (TransitionChunk, BLOCK)
              ursa/{run}/collector/features/{cid} (SafeFeatures, BLOCK)
@@ -28,6 +29,7 @@ from services.common.bus import checked_decode, publisher, query_one, safe_handl
 from services.common.config import BusConfig, RunConfig, config_hash, save_resolved
 from services.common.runtime import ServiceRuntime
 from ursa.config import Config, build_env
+from ursa.pace import PaceGate
 from ursa.policy import Policy
 
 
@@ -109,6 +111,11 @@ class Collector:
         self.sub_weights = self.rt.session.declare_subscriber(
             t.weights, safe_handler(pb.PolicyWeights, self._on_weights, self.rt.drops,
                                     args.run.run_id))
+        self.gate = PaceGate(mode=self.cfg.collector.pace)
+        """The rate limiter: waits while the learner is behind its replay ratio."""
+        self.sub_pace = self.rt.session.declare_subscriber(
+            t.learner_stats, safe_handler(pb.Stats, self._on_learner_stats, self.rt.drops,
+                                          args.run.run_id))
 
         self.policy_version = 0
         self.skill = np.zeros(self.skill_dim, np.float32)
@@ -144,6 +151,27 @@ class Collector:
         with self._weights_lock:
             if self._pending_weights is None or msg.version > self._pending_weights.version:
                 self._pending_weights = msg
+
+    def _on_learner_stats(self, msg: pb.Stats, key: str) -> None:
+        sc = msg.scalars
+        if "pace_budget" not in sc:
+            return
+        self.gate.hear(float(sc["pace_budget"]), int(sc.get("collectors_alive", 1)),
+                       bool(sc.get("pace_engaged", 0.0)), time.monotonic())
+
+    def _wait_for_pace(self, sps: float) -> None:
+        """Hold the env while the rate limiter's gate is closed (stats keep flowing)."""
+        if self.gate.open(time.monotonic()):
+            return
+        t0 = last = time.monotonic()
+        while not self.rt.stop.is_set() and not self.gate.open(time.monotonic()):
+            self.rt.stop.wait(0.005)
+            now = time.monotonic()
+            if now - last >= 1.0 / self.cfg.collector.stats_hz:
+                self._publish_stats(0.0)
+                last = now
+            self._maybe_load_weights()
+        self.gate.waited_s += time.monotonic() - t0
 
     def _maybe_load_weights(self) -> None:
         with self._weights_lock:
@@ -232,6 +260,8 @@ class Collector:
         while not self.rt.stop.is_set():
             if self.args.max_steps and self.step_count >= self.args.max_steps:
                 break
+            self._wait_for_pace(sps)
+            self.gate.stepped()
             if self.step_count % cfg.skill_period == 0:
                 self._request_skill()
             self._maybe_take_skill()
@@ -364,6 +394,8 @@ class Collector:
                 "backlog_chunks": len(self.backlog["chunks"]),
                 "backlog_dropped": self.backlog_dropped,
                 "nonfinite_actions": self.nonfinite_actions,
+                "pace_waiting": float(self.gate.waiting(time.monotonic())),
+                "pace_wait_s": self.gate.waited_s,
             },
             labels={"env": self.cfg.env, "task": self.task, "damage": self.damage or "none",
                     "skill_source": self.skill_source},
@@ -371,7 +403,8 @@ class Collector:
         )
 
     def close(self) -> None:
-        for h in (self._match_listener, self.sub_weights, self.pub_chunks, self.pub_features):
+        for h in (self._match_listener, self.sub_weights, self.sub_pace, self.pub_chunks,
+                  self.pub_features):
             try:
                 h.undeclare()
             except Exception:

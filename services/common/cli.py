@@ -7,6 +7,7 @@ import os
 import signal
 import sys
 import threading
+import typing
 from collections.abc import Sequence
 from typing import Any, TypeVar
 
@@ -15,7 +16,7 @@ import tyro
 from ursa.config import PresetName, preset
 
 T = TypeVar("T")
-PRESETS: tuple[PresetName, ...] = ("tiny", "small", "paper")
+PRESETS: tuple[PresetName, ...] = typing.get_args(PresetName)
 
 
 _PICKERS = ("--preset", "--env", "--feature")

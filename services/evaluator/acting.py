@@ -12,6 +12,7 @@ from typing import Protocol
 
 import numpy as np
 
+from ursa import scoring
 from ursa.policy import Policy, PolicyCarry
 
 
@@ -55,9 +56,12 @@ class RandomActing:
 
 
 class PolicyActing:
-    """A loaded ``ursa.policy.Policy``: mode actions (``explore`` False) from a fresh carry."""
+    """A loaded ``ursa.policy.Policy`` from a fresh carry, acting by the scoring rule
+    (``ursa.scoring.EXPLORE``: sampled actions) unless told otherwise."""
 
-    def __init__(self, policy: Policy, rng: np.random.Generator, explore: bool = False) -> None:
+    def __init__(
+        self, policy: Policy, rng: np.random.Generator, explore: bool = scoring.EXPLORE
+    ) -> None:
         self.policy = policy
         self.rng = rng
         self.explore = explore

@@ -1,9 +1,10 @@
 """One evaluation: run a fixed skill for ``steps`` control steps and measure what it achieved.
 
-Pure (no bus): the evaluator service and the tests call :func:`run_skill`. The achieved skill is
-the mean of φ over the run (φ = the policy's encoder applied to ``info["features"][key]`` with a
-learned φ, the provided feature itself otherwise), its distance to the target is Mahalanobis in
-the repertoire's metric (Σ of the latest snapshot, the metric of δ), exactly as
+Pure (no bus): the evaluator service and the tests call :func:`run_skill`. The skill is scored
+by the one rule of :mod:`ursa.scoring`: the achieved skill is the mean of φ over the steps after
+the settle period (φ = the policy's encoder applied to ``info["features"][key]`` with a learned
+φ, the provided feature itself otherwise), its distance to the target is Mahalanobis in the
+repertoire's metric (Σ of the latest snapshot, the metric of δ), exactly as
 ``ursa.serial.evaluate_skills`` measures it.
 """
 
@@ -15,7 +16,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from services.evaluator.acting import Acting
-from ursa import kde
+from ursa import scoring
 from ursa.envs.base import ResetFreeEnv
 
 NO_DAMAGE = ("", "none")
@@ -35,7 +36,7 @@ class RunResult:
     """What one skill achieved."""
 
     achieved: np.ndarray
-    """Mean φ over the run (D,)."""
+    """Mean φ over the run after the settle period (D,)."""
     distance: float
     """Mahalanobis distance of ``achieved`` to the target, Σ = the metric covariance."""
     ret: float
@@ -46,13 +47,6 @@ class RunResult:
     elapsed_s: float
 
 
-def mahalanobis(a: np.ndarray, b: np.ndarray, cov: np.ndarray) -> float:
-    """‖A (a − b)‖ with A Σ Aᵀ = I (Σ regularized if singular)."""
-    w = kde.whitening_matrix(kde.regularize_cov(np.asarray(cov, np.float64)))
-    diff = (np.asarray(a, np.float64) - np.asarray(b, np.float64)) @ w.T
-    return float(np.sqrt(diff @ diff))
-
-
 def run_skill(
     env: ResetFreeEnv,
     acting: Acting,
@@ -60,8 +54,10 @@ def run_skill(
     steps: int,
     feature_key: str,
     metric_cov: np.ndarray,
+    settle: int | None = None,
 ) -> RunResult:
-    """Act ``steps`` times with ``skill`` (D,) fixed from the env's current state."""
+    """Act ``steps`` times with ``skill`` (D,) fixed from the env's current state; the first
+    ``settle`` steps (default :func:`ursa.scoring.settle_steps`) are not measured."""
     t0 = time.perf_counter()
     skill = np.asarray(skill, np.float64)
     obs, _ = env.reset()
@@ -76,6 +72,7 @@ def run_skill(
         ret += float(reward)
         violations += 0 if info["safe"] else 1
     phi = np.asarray(acting.features(np.stack(inputs)), np.float64)
-    achieved = phi.mean(axis=0)
-    return RunResult(achieved, mahalanobis(achieved, skill, metric_cov), ret, violations, steps,
-                     time.perf_counter() - t0)
+    settle = scoring.settle_steps(steps) if settle is None else settle
+    achieved = scoring.achieved_skill(phi, settle)
+    distance = float(scoring.skill_distance(achieved, skill, metric_cov))
+    return RunResult(achieved, distance, ret, violations, steps, time.perf_counter() - t0)

@@ -35,6 +35,7 @@ from services.common.runtime import ServiceRuntime
 from services.dashboard.live import SnapshotView
 from services.evaluator.acting import Acting, PolicyActing, RandomActing
 from services.evaluator.rollout import allowed_damages, run_skill
+from ursa import scoring
 from ursa.config import Config, build_env
 from ursa.policy import Policy
 
@@ -52,7 +53,7 @@ class EvaluatorArgs:
     """Seed of the evaluations that give none (the n-th such evaluation uses seed + n)."""
     max_steps: int = 5000
     """Largest ``steps`` a request may ask for."""
-    explore: bool = False
+    explore: bool = scoring.EXPLORE
     """Sample actions (as collectors do) instead of taking the policy's mode."""
     stats_hz: float = 1.0
     """How often stats are published."""

@@ -36,8 +36,10 @@ from services.common.config import BusConfig, RunConfig, config_hash, save_resol
 from services.common.runtime import ServiceRuntime
 from services.learner.ingest import IngestLedger
 from services.learner.replay_store import ReplayWriter, read_all
+from ursa import bounds
 from ursa.config import Config, build_env
 from ursa.learner import Learner, SkillSnapshot
+from ursa.pace import default_slack, insert_budget
 from ursa.replay import Replay
 
 CHUNK_FIELDS = ("obs", "action", "reward", "cost", "safe", "features", "skill")
@@ -81,6 +83,8 @@ class LearnerService:
         self.args = args
         self.cfg = args.core
         validate_with(self.cfg)  # every message decoded is checked against the run's bounds
+        self.skill_box = bounds.declared(self.cfg).skills
+        """KDE draws for imagination are truncated to the feature function's skill box."""
         torch.set_num_threads(max(1, args.torch_threads))
         self.rt = ServiceRuntime("learner", args.learner_id, args.bus, args.run)
         self.log = self.rt.log
@@ -111,6 +115,10 @@ class LearnerService:
         self.writer = ReplayWriter(self.replay_dir, args.segment_chunks)
 
         self.inbox: queue.Queue[pb.TransitionChunk] = queue.Queue()
+        self._replay_lock = threading.Lock()
+        """Held while the ingest thread adds a chunk and while training samples a batch."""
+        self._ingest_stop = threading.Event()
+        self._ingest = threading.Thread(target=self._ingest_loop, name="ingest", daemon=True)
         self._snap_lock = threading.Lock()
         self._snapshot: pb.RepertoireSnapshot | None = None
         self._weights_bytes: bytes | None = None
@@ -206,18 +214,16 @@ class LearnerService:
             self.lags.append(max(0, self.weights_version - int(chunk.policy_version)))
         return True
 
-    def _drain(self, timeout: float) -> int:
-        n = 0
-        try:
-            chunk = self.inbox.get(timeout=timeout) if timeout > 0 else self.inbox.get_nowait()
-            self._admit(chunk)
-            n += 1
-            while True:
-                self._admit(self.inbox.get_nowait())
-                n += 1
-        except queue.Empty:
-            pass
-        return n
+    def _ingest_loop(self) -> None:
+        """Decode, store and record chunks while an update runs (torch releases the GIL in its
+        kernels), so that ingestion never waits for training."""
+        while not self._ingest_stop.is_set():
+            try:
+                chunk = self.inbox.get(timeout=0.1)
+            except queue.Empty:
+                continue
+            with self._replay_lock:
+                self._admit(chunk)
 
     # ---- training --------------------------------------------------------------------------
     def skill_snapshot(self) -> SkillSnapshot | None:
@@ -238,7 +244,8 @@ class LearnerService:
                              delta=float(snap.delta),
                              inputs=None if inputs is None or inputs.size == 0
                              else np.asarray(inputs, np.float64),
-                             version=int(snap.encoder_version))
+                             version=int(snap.encoder_version),
+                             box=(np.asarray(self.skill_box.low), np.asarray(self.skill_box.high)))
 
     def can_train(self) -> bool:
         a, c = self.args, self.cfg.learner
@@ -255,7 +262,8 @@ class LearnerService:
         if c.uses_skills and snap is None:
             return False
         t0 = time.perf_counter()
-        batch = self.replay.sample(c.batch_size, c.seq_len, self.rng)
+        with self._replay_lock:
+            batch = self.replay.sample(c.batch_size, c.seq_len, self.rng)
         before = self.learner.vae_version
         metrics = self.learner.train_step(batch, snap)
         self.samples += c.batch_size * c.seq_len
@@ -287,9 +295,23 @@ class LearnerService:
         self.pub_encoder.put(self._encoder_bytes)
         self.log.info("published encoder version %d", self.learner.vae_version)
 
+    def pace(self) -> tuple[float, bool]:
+        """The rate limiter's budget (env steps all collectors may still insert) and whether it
+        is engaged (training has started and can go on); see ``ursa.pace``."""
+        a, c, cc = self.args, self.cfg.learner, self.cfg.collector
+        prefill = len(self.replay) < a.min_replay
+        engaged = (not (a.max_updates and self.learner.updates >= a.max_updates)
+                   and (prefill or not c.uses_skills or self.skill_snapshot() is not None))
+        budget = insert_budget(self.ledger.total_steps, self.samples, c.train_ratio,
+                               cc.pace_tolerance,
+                               default_slack(c.batch_size, c.seq_len, c.train_ratio),
+                               min_inserts=a.min_replay)
+        return budget, engaged
+
     def publish_stats(self) -> None:
         c = self.cfg.learner
         inserted = max(self.ledger.total_steps, 1)
+        budget, engaged = self.pace()
         scalars: dict[str, float] = {
             "replay_steps": len(self.replay),
             "ingested_steps": self.ledger.total_steps,
@@ -299,6 +321,8 @@ class LearnerService:
             "policy_version": self.weights_version,
             "replay_ratio": self.samples / inserted,
             "train_ratio_limit": c.train_ratio,
+            "pace_budget": budget if np.isfinite(budget) else 1e12,
+            "pace_engaged": float(engaged and self.cfg.collector.pace == "wait"),
             "updates_per_s": (len(self.update_times) / sum(self.update_times)
                               if self.update_times else 0.0),
             "policy_lag": float(np.mean(self.lags)) if self.lags else 0.0,
@@ -336,9 +360,11 @@ class LearnerService:
         print(f"LEARNER READY mode={self.cfg.learner.mode} updates={self.learner.updates}",
               flush=True)
         last_stats = last_weights = last_ckpt = time.monotonic()
+        self._ingest.start()
         while not self.rt.stop.is_set():
             trained = self.can_train() and self.train_once()
-            self._drain(0.0 if trained else 0.05)
+            if not trained:
+                self.rt.stop.wait(0.02)
             now = time.monotonic()
             if now - last_stats >= 1.0 / a.stats_hz:
                 self.publish_stats()
@@ -358,6 +384,9 @@ class LearnerService:
                 h.undeclare()
             except Exception:
                 pass
+        self._ingest_stop.set()
+        if self._ingest.is_alive():
+            self._ingest.join(timeout=10.0)
         while not self.inbox.empty():
             self._admit(self.inbox.get_nowait())
         self.writer.close()

@@ -21,7 +21,7 @@ from services.api.service import ApiArgs, ApiService
 from services.common.bus import query_one
 from services.common.config import RunConfig, config_hash
 from services.evaluator.acting import PolicyActing, RandomActing
-from services.evaluator.rollout import allowed_damages, mahalanobis, run_skill
+from services.evaluator.rollout import allowed_damages, run_skill
 from services.evaluator.service import Evaluator, EvaluatorArgs
 from tests.services._stack import snapshot_msg
 from tests.stack import Stack, running_stack, wait_for
@@ -32,6 +32,7 @@ from ursa.eval.loading import read_checkpoint
 from ursa.learner import Learner
 from ursa.policy import Policy, pack_policy_weights
 from ursa.repertoire import Repertoire
+from ursa.scoring import skill_distance
 from ursa.serial import evaluate_skills
 
 RUN = "test"
@@ -61,14 +62,14 @@ def test_run_skill_matches_the_serial_evaluation() -> None:
     cfg = preset("tiny", "point")
     pol = _policy(cfg, seed=1)
     ref = evaluate_skills(pol, PointEnv(seed=4), z[None], 60, cov, explore=False)
-    got = run_skill(PointEnv(seed=4), PolicyActing(pol, np.random.default_rng(0)), z, 60,
-                    "position", cov)
+    got = run_skill(PointEnv(seed=4), PolicyActing(pol, np.random.default_rng(0), explore=False),
+                    z, 60, "position", cov)
     np.testing.assert_allclose(got.achieved, ref.achieved[0], rtol=1e-6)
     assert got.distance == pytest.approx(ref.distance[0], rel=1e-6)
 
 
 def test_mahalanobis_and_damages() -> None:
-    assert mahalanobis(np.array([1.0, 0.0]), np.zeros(2), np.diag([4.0, 1.0])) == 0.5
+    assert skill_distance(np.array([1.0, 0.0]), np.zeros(2), np.diag([4.0, 1.0])) == 0.5
     assert allowed_damages("point") == ("", "none")
     a1 = allowed_damages("a1")
     assert "front_hip" in a1 and "back_lower" in a1 and "" in a1

@@ -25,8 +25,9 @@ def _common(p: argparse.ArgumentParser, steps: bool = True) -> None:
     if steps:
         p.add_argument("--steps", type=int, default=None,
                        help="T: env steps per skill (default: the run's skill period)")
-        p.add_argument("--explore", action="store_true",
-                       help="sample actions instead of taking the policy's mode")
+        p.add_argument("--mode", dest="explore", action="store_false",
+                       help="take the policy's mode instead of sampling actions (the scoring "
+                            "rule of ursa.scoring samples)")
     p.add_argument("--no-progress", action="store_true", help="hide the progress bars")
     p.add_argument("--threads", type=int, default=1, help="torch CPU threads")
 
@@ -42,8 +43,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--skills", type=int, default=None,
                    help="N_z most distinct skills to execute (default: the run's N_z; 0: all)")
     p.add_argument("--bins", type=int, default=20, help="cells per joint (per axis)")
-    p.add_argument("--settle", type=int, default=0,
-                   help="first steps of each skill executed but not averaged")
+    p.add_argument("--settle", type=int, default=None,
+                   help="first steps of each skill executed but not averaged (default: the "
+                        "scoring rule's, a fifth of the steps)")
     _common(p)
 
     p = sub.add_parser("damage", help="Figure 5: returns with a frozen joint")
@@ -64,8 +66,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help="widen the repertoire's bounding box by this fraction on each side")
     p.add_argument("--quantile", type=float, default=0.0,
                    help="box from the q and 1-q quantiles of the skills (0: min and max)")
-    p.add_argument("--settle", type=int, default=0,
-                   help="first steps of each target executed but not measured")
+    p.add_argument("--settle", type=int, default=None,
+                   help="first steps of each target executed but not measured (default: the "
+                        "scoring rule's, a fifth of the steps)")
     _common(p)
 
     p = sub.add_parser("embedding", help="Figure 1: 2-D embedding of state trajectories")

@@ -18,6 +18,7 @@ from typing import Any
 
 import numpy as np
 
+from ursa import scoring
 from ursa.envs.a1 import DAMAGE_SCENARIOS
 from ursa.eval.common import distinct_skills, pyplot, save_figure, write_csv, write_json
 from ursa.eval.loading import LoadedRun
@@ -52,7 +53,7 @@ def evaluate_damage(
     trials: int = 1,
     rescue: bool = False,
     seed: int = 0,
-    explore: bool = False,
+    explore: bool = scoring.EXPLORE,
     progress: bool = True,
 ) -> list[DamageTrial]:
     """The score of ``run`` on each scenario (``intact``: no damage)."""
@@ -91,7 +92,7 @@ def run_damage(
     trials: int = 1,
     rescue: bool = False,
     seed: int = 0,
-    explore: bool = False,
+    explore: bool = scoring.EXPLORE,
     progress: bool = True,
 ) -> list[DamageTrial]:
     """Every run (label ``ursa``) and baseline (label ``baseline``) on every scenario."""

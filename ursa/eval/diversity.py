@@ -17,6 +17,7 @@ from typing import Any
 
 import numpy as np
 
+from ursa import scoring
 from ursa.eval.common import distinct_skills, pyplot, save_figure, write_csv, write_json
 from ursa.eval.coverage import JOINT_TYPES, LEGS, Coverage, coverage, coverage_specs
 from ursa.eval.loading import LoadedRun
@@ -65,10 +66,10 @@ def execute_for_coverage(
     n_skills: int,
     steps: int,
     bins: int,
-    settle: int = 0,
+    settle: int | None = None,
     executions: int | None = None,
     seed: int = 0,
-    explore: bool = False,
+    explore: bool = scoring.EXPLORE,
     progress: bool = True,
 ) -> DiversityRun:
     """Execute a run's skills (or, without skills, ``executions`` repetitions of its policy)
@@ -100,9 +101,9 @@ def run_diversity(
     n_skills: int | None = None,
     steps: int | None = None,
     bins: int = 20,
-    settle: int = 0,
+    settle: int | None = None,
     seed: int = 0,
-    explore: bool = False,
+    explore: bool = scoring.EXPLORE,
     progress: bool = True,
 ) -> list[DiversityRun]:
     """Coverage of ``run`` (and of ``baseline``, executed as many times). Defaults: N_z skills,

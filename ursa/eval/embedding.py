@@ -16,6 +16,7 @@ from typing import Any
 
 import numpy as np
 
+from ursa import scoring
 from ursa.eval.common import distinct_skills, pyplot, save_figure, write_csv, write_json
 from ursa.eval.loading import LoadedRun
 from ursa.eval.rollout import Rollouts, execute_skills
@@ -73,7 +74,7 @@ def run_embedding(
     steps: int | None = None,
     method: str = "auto",
     seed: int = 0,
-    explore: bool = False,
+    explore: bool = scoring.EXPLORE,
     progress: bool = True,
 ) -> tuple[Rollouts, Embedding, np.ndarray]:
     """Execute ``n_skills`` distinct skills (repetitions of the policy without skills) and

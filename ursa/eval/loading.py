@@ -36,6 +36,7 @@ import numpy as np
 import torch
 import yaml
 
+from ursa import bounds
 from ursa.config import PROVIDED_FEATURES, Config, build_env, with_feature
 from ursa.envs.base import ResetFreeEnv
 from ursa.learner import Learner
@@ -265,7 +266,7 @@ def load_run(path: str | os.PathLike[str], seed: int = 0) -> LoadedRun:
     repertoire = None
     extra: dict[str, Any] = {}
     if run_dir is not None and (run_dir / ARCHIVE).exists():
-        repertoire = Repertoire.load(run_dir / ARCHIVE)
+        repertoire = Repertoire.load(run_dir / ARCHIVE, bounds.declared(cfg).skills)
         if (policy is not None and policy.vae is not None and repertoire.config.input_dim
                 and repertoire.encoder_version != policy.vae_version and len(repertoire)):
             # the archive and the checkpoint are saved at different times: put the skills in
@@ -341,7 +342,8 @@ def make_serial_loop(
 ) -> SerialLoop:
     """A :class:`SerialLoop` on ``build_env(cfg)`` with the settings of ``cfg``."""
     return SerialLoop(build_env(cfg, seed=env_seed), cfg.learner,
-                      serial_config(cfg, prefill, seed, **overrides))
+                      serial_config(cfg, prefill, seed, **overrides),
+                      skill_box=bounds.declared(cfg).skills)
 
 
 class _RewardTap:

@@ -20,7 +20,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from tqdm.auto import tqdm
 
-from ursa import kde
+from ursa import kde, scoring
 from ursa.envs.base import ResetFreeEnv
 from ursa.policy import Policy, PolicyCarry
 
@@ -107,8 +107,8 @@ def execute_skills(
     record: Sequence[str] = (),
     phi_key: str | None = None,
     tracking: bool = False,
-    settle: int = 0,
-    explore: bool = False,
+    settle: int | None = None,
+    explore: bool = scoring.EXPLORE,
     keep_obs: bool = False,
     restand: bool = False,
     seed: int = 0,
@@ -121,7 +121,9 @@ def execute_skills(
     skill (pass ``np.zeros((K, 0))``). record: ``info["features"]`` keys whose mean is kept.
     phi_key: the key φ is computed from (the VAE input or the provided feature); None: no φ.
     tracking: ``phi_key`` is φ itself (a provided feature): also keep the per-step absolute
-    tracking error. settle: the first steps of each skill are executed but not measured.
+    tracking error. settle: the first steps of each skill are executed but not measured
+    (default: the scoring rule's, :func:`ursa.scoring.settle_steps`). explore: sampled actions
+    (the scoring rule's default) or the policy's mode.
     restand: right the robot (A1) and restart the policy's memory before each skill, so that
     skills are independent trials; otherwise the env runs on without resets and the policy
     keeps its carry across skills (a collector's behaviour).
@@ -129,6 +131,7 @@ def execute_skills(
     skills = np.asarray(skills, np.float64)
     if skills.ndim != 2:
         raise ValueError("skills must be (K, D)")
+    settle = scoring.settle_steps(steps) if settle is None else settle
     if not 0 <= settle < steps:
         raise ValueError("need 0 <= settle < steps")
     k = len(skills)
@@ -202,7 +205,5 @@ def execute_skills(
 
 
 def skill_distance(achieved: np.ndarray, skills: np.ndarray, cov: np.ndarray) -> np.ndarray:
-    """Mahalanobis distance ‖achieved − z‖_Σ (K,) in the metric of δ."""
-    w = kde.whitening_matrix(kde.regularize_cov(np.asarray(cov, np.float64)))
-    diff = (np.asarray(achieved, np.float64) - np.asarray(skills, np.float64)) @ w.T
-    return np.asarray(np.linalg.norm(diff, axis=-1))
+    """Mahalanobis distance ‖achieved − z‖_Σ (K,) in the metric of δ (:mod:`ursa.scoring`)."""
+    return scoring.skill_distance(achieved, skills, cov)

@@ -18,6 +18,7 @@ from typing import Any
 
 import numpy as np
 
+from ursa import scoring
 from ursa.eval.common import feature_names, pyplot, save_figure, write_csv, write_json
 from ursa.eval.loading import LoadedRun
 from ursa.eval.rollout import Rollouts, execute_skills
@@ -65,10 +66,10 @@ def run_velocity(
     run: LoadedRun,
     grid: int = 7,
     steps: int | None = None,
-    settle: int = 0,
+    settle: int | None = None,
     margin: float = 0.0,
     seed: int = 0,
-    explore: bool = False,
+    explore: bool = scoring.EXPLORE,
     progress: bool = True,
     quantile: float = 0.0,
 ) -> VelocityResult:

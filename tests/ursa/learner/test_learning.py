@@ -1,8 +1,9 @@
-"""Learning on the point env (CPU, a few minutes): an URSA agent trained with the provided
-feature φ = position (``ursa-supervised``) and a DayDreamer agent (reward only), both by the
-single-process loop with the recipe of :mod:`tests.trained` (shared with the eval suite's and
-the evaluator's tests, trained once per session), then run in the real env on skills sampled
-from the URSA repertoire's KDE.
+"""Learning on the point env (CPU, a few minutes): URSA agents trained with the provided
+feature φ = position (``ursa-supervised``) for each of :data:`tests.trained.SEEDS` and a
+DayDreamer agent (reward only), all by the single-process loop with the ``point`` preset
+(:mod:`tests.trained`, shared with the eval suite's and the evaluator's tests, trained once per
+session), then run in the real env on skills sampled from each URSA repertoire's KDE and scored
+by the one rule of :mod:`ursa.scoring`. Claims hold for the median and the worst seed.
 """
 
 from __future__ import annotations
@@ -14,7 +15,7 @@ import numpy as np
 import pytest
 import torch
 
-from tests.trained import SKILL_PERIOD, point_config
+from tests.trained import SEEDS, SKILL_PERIOD, point_config
 from ursa.envs.point import PointEnv
 from ursa.eval.loading import load_run, read_checkpoint
 from ursa.learner import Learner
@@ -26,6 +27,12 @@ pytestmark = [pytest.mark.slow, pytest.mark.timeout(1800)]
 EVAL_SKILLS = 60
 """Skills drawn from the URSA repertoire's KDE for the evaluation, T steps each."""
 EVAL_T = SKILL_PERIOD
+WITHIN_MEDIAN = 0.75
+"""Fraction of KDE skills executed within δ: the median over seeds reaches it..."""
+WITHIN_WORST = 0.6
+"""...and every seed reaches this."""
+RANDOM_WITHIN = 0.2
+"""Random actions and DayDreamer's policy execute at most this fraction within δ."""
 
 
 def _heldout(steps: int = 1200, seed: int = 100) -> dict[str, np.ndarray]:
@@ -52,9 +59,9 @@ def _prediction_loss(m: dict[str, float]) -> float:
     return m["wm/decoder"] + m["wm/reward"] + m["wm/cost"] + m["wm/phi"]
 
 
-def _learner(run_dir: Path | None) -> Learner:
+def _learner(run_dir: Path | None, seed: int = 0) -> Learner:
     """The run's learner from its checkpoint (``None``: the same learner before training)."""
-    lc = point_config("ursa-supervised").learner
+    lc = point_config("ursa-supervised", seed).learner
     learner = Learner(lc, PointEnv.obs_dim, PointEnv.act_dim, 2)
     if run_dir is not None:
         learner.load_state_dict(read_checkpoint(run_dir / "checkpoints" / "learner.pt"))
@@ -67,10 +74,11 @@ def assess(run_dir: Path, label: str) -> dict[str, Any]:
     policy and by random actions."""
     torch.set_num_threads(1)
     run = load_run(run_dir)
-    assert run.config.learner == point_config("ursa-supervised").learner
-    learner = _learner(run_dir)
+    seed = run.config.learner.seed
+    assert run.config.learner == point_config("ursa-supervised", seed).learner
+    learner = _learner(run_dir, seed)
     heldout = _heldout()
-    initial = _learner(None).world_model_loss(heldout)
+    initial = _learner(None, seed).world_model_loss(heldout)
     final = learner.world_model_loss(heldout)
     rep = run.require_repertoire()
     skills = rep.sample(EVAL_SKILLS, np.random.default_rng(1))
@@ -97,9 +105,17 @@ def assess(run_dir: Path, label: str) -> dict[str, Any]:
 
 
 @pytest.fixture(scope="module")
-def ursa_run(point_runs: dict[str, Any]) -> dict[str, Any]:
+def ursa_runs(point_runs: dict[str, Any]) -> list[dict[str, Any]]:
     secs = point_runs["seconds"]
-    return assess(point_runs["runs"]["ursa"], f"URSA serial run ({secs} s)")
+    return [
+        assess(point_runs["runs"][f"ursa-s{s}"], f"URSA serial run, seed {s} ({secs} s)")
+        for s in SEEDS
+    ]
+
+
+@pytest.fixture(scope="module")
+def ursa_run(ursa_runs: list[dict[str, Any]]) -> dict[str, Any]:
+    return ursa_runs[0]
 
 
 @pytest.fixture(scope="module")
@@ -126,14 +142,34 @@ def test_world_model_heldout_prediction_loss_falls(ursa_run: dict[str, Any]) -> 
 
 def test_skills_executed_within_delta(ursa_run: dict[str, Any]) -> None:
     delta = ursa_run["delta"]
-    assert ursa_run["eval"].within(delta).mean() >= 0.7
-    assert ursa_run["random"].within(delta).mean() <= 0.2
+    assert ursa_run["eval"].within(delta).mean() >= WITHIN_WORST
+    assert ursa_run["random"].within(delta).mean() <= RANDOM_WITHIN
+
+
+def test_skills_executed_within_delta_across_seeds(ursa_runs: list[dict[str, Any]]) -> None:
+    within = np.array([r["eval"].within(r["delta"]).mean() for r in ursa_runs])
+    rnd = np.array([r["random"].within(r["delta"]).mean() for r in ursa_runs])
+    print(f"\nwithin δ by seed {dict(zip(SEEDS, within.round(3), strict=True))}; "
+          f"random {rnd.round(3).tolist()}")
+    assert np.median(within) >= WITHIN_MEDIAN, within
+    assert within.min() >= WITHIN_WORST, within
+    assert rnd.max() <= RANDOM_WITHIN, rnd
+
+
+def test_safety_violations_below_a_third_of_random_every_seed(
+    ursa_runs: list[dict[str, Any]],
+) -> None:
+    rates = [(r["eval"].violation_rate.mean(), r["random"].violation_rate.mean())
+             for r in ursa_runs]
+    print(f"\nviolation rate (ursa, random) by seed: {rates}")
+    for ursa_rate, random_rate in rates:
+        assert ursa_rate < random_rate / 3.0, rates
 
 
 def test_daydreamer_does_not_execute_skills(
     ursa_run: dict[str, Any], daydreamer_eval: EvalResult
 ) -> None:
-    assert daydreamer_eval.within(ursa_run["delta"]).mean() <= 0.2
+    assert daydreamer_eval.within(ursa_run["delta"]).mean() <= RANDOM_WITHIN
     # it maximises the reward instead (the corner (0.8, 0.8)): more return than the URSA agent
     assert daydreamer_eval.returns.mean() > ursa_run["eval"].returns.mean()
 

@@ -1,0 +1,53 @@
+"""The rate limiter's pure pieces (ursa.pace): hand-worked budgets and the collector's gate."""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+
+from ursa.pace import PaceGate, default_slack, insert_budget
+
+
+def test_insert_budget_hand_worked() -> None:
+    # 3200 replayed steps at train_ratio 32 allow 100 inserted steps, 10 % tolerance 110,
+    # plus 64 steps of slack: 174 allowed, 150 inserted -> 24 more
+    assert insert_budget(150, 3200, 32.0, 0.1, 64.0) == pytest.approx(24.0)
+    # behind: 200 inserted -> -26, the collectors wait
+    assert insert_budget(200, 3200, 32.0, 0.1, 64.0) == pytest.approx(-26.0)
+    assert insert_budget(10, 0, 0.0, 0.1, 0.0) == math.inf  # no target: no limit
+    # the prefill of 2000 steps is always allowed, then the learner catches up on it
+    assert insert_budget(1500, 0, 32.0, 0.1, 64.0, min_inserts=2000) == pytest.approx(500.0)
+    assert insert_budget(2000, 0, 32.0, 0.1, 64.0, min_inserts=2000) == pytest.approx(0.0)
+    # 2000 * 32 = 64000 samples later: 2200 + 64 allowed
+    assert insert_budget(2000, 64000, 32.0, 0.1, 64.0, min_inserts=2000) == pytest.approx(264.0)
+
+
+def test_default_slack_is_a_few_updates_of_env_steps() -> None:
+    # 4 updates of 16 x 64 replayed steps at ratio 32: 4 * 1024 / 32 = 128 env steps
+    assert default_slack(16, 64, 32.0) == pytest.approx(128.0)
+
+
+def test_gate_spends_its_share_then_waits_until_the_budget_rises() -> None:
+    gate = PaceGate(mode="wait", stale_s=5.0)
+    assert gate.open(0.0)  # nothing heard: never hold a collector
+    gate.hear(total_budget=6.0, collectors=3, engaged=True, now=1.0)
+    assert gate.budget == pytest.approx(2.0)  # its share of the 6 steps
+    for _ in range(2):
+        assert gate.open(1.1)
+        gate.stepped()
+    assert not gate.open(1.2) and gate.waiting(1.2)
+    gate.hear(total_budget=30.0, collectors=3, engaged=True, now=1.5)
+    assert gate.open(1.6)
+
+
+def test_gate_opens_when_the_learner_is_missing_done_or_free() -> None:
+    gate = PaceGate(mode="wait", stale_s=5.0)
+    gate.hear(total_budget=-100.0, collectors=1, engaged=True, now=10.0)
+    assert not gate.open(14.9)
+    assert gate.open(15.1)  # no budget heard for stale_s: the learner is gone
+    gate.hear(total_budget=-100.0, collectors=1, engaged=False, now=20.0)
+    assert gate.open(20.1)  # not training (prefill, or max updates reached)
+    free = PaceGate(mode="free")
+    free.hear(total_budget=-100.0, collectors=1, engaged=True, now=0.0)
+    assert free.open(0.1)  # a real robot never waits
