@@ -37,9 +37,11 @@ test-fast: $(STAMP)
 bench: $(STAMP)
 	@for b in benchmarks/*.py; do echo "== $$b"; $(PY) $$b --quick || exit 1; done
 
+## lint: ruff (lint and format) and mypy over the whole tree; CI runs it before the tests
 lint: $(STAMP)
 	$(VENV)/bin/ruff check .
-	$(VENV)/bin/mypy ursa proto services
+	$(VENV)/bin/ruff format --check .
+	$(VENV)/bin/mypy ursa proto services tests benchmarks
 
 ## proto: regenerate proto/ursa_pb2.py(i) from proto/ursa.proto
 proto: $(STAMP)

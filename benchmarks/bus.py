@@ -17,6 +17,7 @@ import sys
 import tempfile
 import time
 from pathlib import Path
+from typing import Any
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
@@ -34,13 +35,17 @@ def max_ingest(stack: Stack, replay_dir: Path, env: str) -> tuple[float, int]:
     """Chunks/s and steps/chunk of the learner's ingest path on this run's chunks."""
     payloads = [codec.encode(c) for c in read_all(replay_dir)]
     with tempfile.TemporaryDirectory() as tmp:
-        args = LearnerArgs(core=preset("tiny", env), bus=stack.bus,  # type: ignore[arg-type]
-                           run=RunConfig("ingest", Path(tmp)), min_replay=10**12)
+        args = LearnerArgs(
+            core=preset("tiny", env),  # type: ignore[arg-type]
+            bus=stack.bus,
+            run=RunConfig("ingest", Path(tmp)),
+            min_replay=10**12,
+        )
         svc = LearnerService(args)
         t0 = time.perf_counter()
         for p in payloads:
             svc._on_chunk(codec.decode(pb.TransitionChunk, p), "bench")
-        svc._drain(0.0)
+        svc.drain()
         dt = time.perf_counter() - t0
         svc.close()
     steps = int(codec.decode(pb.TransitionChunk, payloads[0]).obs.shape[0]) if payloads else 0
@@ -52,8 +57,12 @@ def main() -> None:
     ap.add_argument("--quick", action="store_true", help="20 s of load instead of 60")
     ap.add_argument("--collectors", type=int, default=4)
     ap.add_argument("--seconds", type=float, default=60.0)
-    ap.add_argument("--env", default="a1", choices=["a1", "point"],
-                    help="a1: the real workload; point: a stress test (~20x more steps/s)")
+    ap.add_argument(
+        "--env",
+        default="a1",
+        choices=["a1", "point"],
+        help="a1: the real workload; point: a stress test (~20x more steps/s)",
+    )
     a = ap.parse_args()
     seconds = 20.0 if a.quick else a.seconds
     with tempfile.TemporaryDirectory() as tmp:
@@ -68,10 +77,16 @@ def main() -> None:
             for i, cid in enumerate(cids):
                 st.start(cid, "services.collector", "--collector-id", cid, "--seed", str(i))
             wait_for(lambda: all(w.get("collector", c) for c in cids), 60, "the collectors")
-            steps0 = sum(int(w.get("collector", c).scalars["steps"]) for c in cids)
+
+            def scal(service: str, sid: str) -> Any:
+                msg = w.get(service, sid)
+                assert msg is not None, (service, sid)
+                return msg.scalars
+
+            steps0 = sum(int(scal("collector", c)["steps"]) for c in cids)
             t0 = time.monotonic()
             time.sleep(seconds)
-            produced_steps = sum(int(w.get("collector", c).scalars["steps"]) for c in cids)
+            produced_steps = sum(int(scal("collector", c)["steps"]) for c in cids)
             elapsed = time.monotonic() - t0
             produced_steps -= steps0
             for cid in cids:  # SIGTERM: each publishes its last partial chunk and stats
@@ -81,9 +96,16 @@ def main() -> None:
 
             def settled() -> bool:
                 ls = w.get("learner", "main")
-                return bool(ls) and all(
-                    ls.scalars.get(f"chunks/{c}", 0) >= w.get("collector", c).scalars["chunks"]
-                    for c in cids) and ls.scalars["inbox"] == 0
+                if ls is None:
+                    return False
+                return (
+                    all(
+                        ls.scalars.get(f"chunks/{c}", 0) >= scal("collector", c)["chunks"]
+                        for c in cids
+                    )
+                    and ls.scalars["inbox"] == 0
+                )
+
             try:
                 wait_for(settled, 30, "the learner to catch up")
             except TimeoutError:
@@ -91,7 +113,7 @@ def main() -> None:
             time.sleep(1.0)
             ls = w.get("learner", "main")
             assert ls is not None
-            sent = {c: int(w.get("collector", c).scalars["chunks"]) for c in cids}
+            sent = {c: int(scal("collector", c)["chunks"]) for c in cids}
             got = {c: int(ls.scalars.get(f"chunks/{c}", 0)) for c in cids}
             p99 = ls.scalars.get("chunk_latency_p99_ms", float("nan"))
             p50 = ls.scalars.get("chunk_latency_p50_ms", float("nan"))
@@ -107,10 +129,19 @@ def main() -> None:
     print(f"{'collector':<10}{'sent':>10}{'received':>10}")
     for c in cids:
         print(f"{c:<10}{sent[c]:>10}{got[c]:>10}")
-    print(json.dumps({"env": a.env, "collectors": a.collectors, "seconds": round(elapsed, 1),
-                      "produced_steps_per_s": round(produced_sps, 1),
-                      "max_ingest_steps_per_s": round(ingest_cps * steps_per_chunk, 1),
-                      "latency_p50_ms": round(p50, 2), "latency_p99_ms": round(p99, 2)}))
+    print(
+        json.dumps(
+            {
+                "env": a.env,
+                "collectors": a.collectors,
+                "seconds": round(elapsed, 1),
+                "produced_steps_per_s": round(produced_sps, 1),
+                "max_ingest_steps_per_s": round(ingest_cps * steps_per_chunk, 1),
+                "latency_p50_ms": round(p50, 2),
+                "latency_p99_ms": round(p99, 2),
+            }
+        )
+    )
     print(f"RESULT delivered={delivered:.4f} p99_ms={p99:.2f} ingest_headroom={headroom:.2f}")
 
 

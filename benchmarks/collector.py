@@ -44,8 +44,13 @@ def bare(cfg, steps: int) -> float:  # type: ignore[no-untyped-def]
     return steps / dt
 
 
-def inference_times(policy, obs: np.ndarray, skill: np.ndarray, n: int = 200,  # type: ignore[no-untyped-def]
-                    rounds: int = 5) -> tuple[float, float]:
+def inference_times(
+    policy,
+    obs: np.ndarray,
+    skill: np.ndarray,
+    n: int = 200,  # type: ignore[no-untyped-def]
+    rounds: int = 5,
+) -> tuple[float, float]:
     """Seconds per step (best of ``rounds`` alternating blocks of ``n``: the machine is shared)
     of the policy's two inference paths, one thread, batch 1, both drawing the latent uniforms
     and the action noise: ``Policy.act`` (numpy, what the collector runs) and the exported ONNX
@@ -79,12 +84,22 @@ def inference_times(policy, obs: np.ndarray, skill: np.ndarray, n: int = 200,  #
 
 
 def collector(cfg, steps: int, router: str, runs: Path) -> tuple[float, float, float]:  # type: ignore[no-untyped-def]
-    args = CollectorArgs(core=cfg, bus=BusConfig(router=router), run=RunConfig("bench", runs),
-                         collector_id="bench", max_steps=steps)
+    args = CollectorArgs(
+        core=cfg,
+        bus=BusConfig(router=router),
+        run=RunConfig("bench", runs),
+        collector_id="bench",
+        max_steps=steps,
+    )
     c = Collector(args)
     env = c.env
-    learner = Learner(cfg.learner, env.obs_dim, env.act_dim,
-                      int(env.feature_dims[cfg.feature_input_key]), cfg.skill_dim)
+    learner = Learner(
+        cfg.learner,
+        env.obs_dim,
+        env.act_dim,
+        int(env.feature_dims[cfg.feature_input_key]),
+        cfg.skill_dim,
+    )
     c.policy.load_weights_bytes(learner.policy_weights_bytes(), version=1)
     c.policy_version = 1  # act with the policy from the first step (no random prefill)
     obs, _ = env.reset()
@@ -109,8 +124,12 @@ def main() -> None:
         steps *= 10
     port = free_port()
     router = f"tcp/127.0.0.1:{port}"
-    proc = subprocess.Popen([sys.executable, "-m", "services.router", "--listen", router],
-                            cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "services.router", "--listen", router],
+        cwd=ROOT,
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+    )
     try:
         wait_port(port)
         with tempfile.TemporaryDirectory() as tmp:
@@ -129,9 +148,11 @@ def main() -> None:
     print(f"{'  numpy (the collector uses it)':<34}{inference * 1e3:>12.3f}")
     print(f"{'  onnxruntime (ursa export)':<34}{inference_onnx * 1e3:>12.3f}")
     print(f"env={a.env} preset={a.preset} steps={steps}")
-    print(f"RESULT ratio={ratio:.3f} collector_steps_per_s={coll_sps:.1f} "
-          f"numpy_ms={inference * 1e3:.3f} onnx_ms={inference_onnx * 1e3:.3f} "
-          f"onnx_over_numpy={inference_onnx / inference:.2f}")
+    print(
+        f"RESULT ratio={ratio:.3f} collector_steps_per_s={coll_sps:.1f} "
+        f"numpy_ms={inference * 1e3:.3f} onnx_ms={inference_onnx * 1e3:.3f} "
+        f"onnx_over_numpy={inference_onnx / inference:.2f}"
+    )
 
 
 if __name__ == "__main__":

@@ -93,10 +93,18 @@ def main() -> None:
     ap.add_argument("--device", default="cuda" if torch.cuda.is_available() else "cpu")
     ap.add_argument("--presets", default="small,paper", help="comma-separated presets")
     ap.add_argument("--updates", type=int, default=0, help="timed updates (0: by preset)")
-    ap.add_argument("--threads", type=int, default=0,
-                    help="torch CPU threads (0: the learner service's, URSA_TORCH_THREADS or 1)")
-    ap.add_argument("--repeats", type=int, default=0,
-                    help="interleaved repeats of each measurement (median reported; 0: 3 quick)")
+    ap.add_argument(
+        "--threads",
+        type=int,
+        default=0,
+        help="torch CPU threads (0: the learner service's, URSA_TORCH_THREADS or 1)",
+    )
+    ap.add_argument(
+        "--repeats",
+        type=int,
+        default=0,
+        help="interleaved repeats of each measurement (median reported; 0: 3 quick)",
+    )
     ap.add_argument("--quick", action="store_true", help="few updates, < 60 s on a CPU")
     args = ap.parse_args()
     torch.set_num_threads(args.threads or int(os.environ.get("URSA_TORCH_THREADS", "1")))
@@ -118,19 +126,26 @@ def main() -> None:
         runs: dict[tuple[str, str], list[dict[str, float]]] = {v: [] for v in variants}
         for _ in range(repeats if name == "small" or cuda else 1):
             for mode, grad in variants:  # interleaved, so that load hits every side alike
-                cfg = dataclasses.replace(base, mode=mode, actor_grad=grad,
-                                          imag_starts=IMAG_STARTS)
+                cfg = dataclasses.replace(
+                    base,
+                    mode=mode,  # type: ignore[arg-type]
+                    actor_grad=grad,  # type: ignore[arg-type]
+                    imag_starts=IMAG_STARTS,
+                )
                 r = measure(cfg, n, warm)
                 runs[(mode, grad)].append(r)
-                print(f"measured {name}/{mode}/{grad}: {r['updates_per_s']:.3f} updates/s",
-                      flush=True)
+                print(
+                    f"measured {name}/{mode}/{grad}: {r['updates_per_s']:.3f} updates/s", flush=True
+                )
         for (mode, grad), rs in runs.items():
             best = sorted(rs, key=lambda r: r["updates_per_s"])[len(rs) // 2]  # the median
             label = mode if grad == "reinforce" else f"{mode}-bptt"
             rows.append((name, label, best))
 
-    print(f"\ndevice: {args.device}, torch threads: {torch.get_num_threads()}, "
-          f"imagination: {IMAG_STARTS} starts x 15 steps, median of {repeats}")
+    print(
+        f"\ndevice: {args.device}, torch threads: {torch.get_num_threads()}, "
+        f"imagination: {IMAG_STARTS} starts x 15 steps, median of {repeats}"
+    )
     head = f"{'preset':<7} {'mode':<13} {'upd/s':>8} {'s/upd':>8} " + " ".join(
         f"{p[:11]:>11}" for p in PHASES
     )
@@ -154,8 +169,10 @@ def main() -> None:
         b = res.get((name, "ursa-bptt"))
         if u and b:
             ratio = u["updates_per_s"] / b["updates_per_s"]
-            print(f"{name}: the REINFORCE update runs {ratio:.2f}x the updates/s of "
-                  f"backpropagation through the dynamics")
+            print(
+                f"{name}: the REINFORCE update runs {ratio:.2f}x the updates/s of "
+                f"backpropagation through the dynamics"
+            )
             out.append(f"{name}_dynamics_ratio={ratio:.2f}")
     small = res.get(("small", "ursa"))
     first = f"updates_per_s={small['updates_per_s']:.3f}" if small else "updates_per_s=nan"

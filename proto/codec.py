@@ -108,8 +108,10 @@ def from_array(msg: pb.Array) -> np.ndarray:
         raise BadMessage(f"negative array shape {shape}")
     n = int(np.prod(shape, dtype=np.int64)) if shape else 1
     if n * dt.itemsize != len(msg.data):
-        raise BadMessage(f"array of shape {shape} and dtype {dt} needs {n * dt.itemsize} bytes, "
-                         f"got {len(msg.data)}")
+        raise BadMessage(
+            f"array of shape {shape} and dtype {dt} needs {n * dt.itemsize} bytes, "
+            f"got {len(msg.data)}"
+        )
     return np.frombuffer(msg.data, dtype=dt).reshape(shape)
 
 
@@ -132,8 +134,9 @@ def _tag(algorithm: int, type_name: str, sender: bytes, body: bytes, key: bytes 
     return h.digest()
 
 
-def frame(body: bytes, type_name: str, sender: str, key: bytes | None = None,
-          algorithm: int | None = None) -> bytes:
+def frame(
+    body: bytes, type_name: str, sender: str, key: bytes | None = None, algorithm: int | None = None
+) -> bytes:
     """Wrap serialized ``body`` of message type ``type_name`` (full name, e.g.
     ``ursa.v1.Stats``) in a frame tagged with a MAC under ``key``, or a checksum without one."""
     s = sender.encode("ascii", "replace")[:MAX_SENDER_BYTES]
@@ -161,8 +164,9 @@ def read_frame(payload: bytes | bytearray | memoryview) -> Frame:
     return Frame(alg, sender, tag, data[5 + n + TAG_BYTES :])
 
 
-def verify(cls: type[Message], payload: bytes | bytearray | memoryview,
-           key: bytes | None = None) -> Frame:
+def verify(
+    cls: type[Message], payload: bytes | bytearray | memoryview, key: bytes | None = None
+) -> Frame:
     """Read and verify the frame of a ``cls`` payload; returns it. With ``key`` (default: the
     run key), only a valid MAC passes; without, a valid checksum. Raises ``IntegrityError``."""
     key = run_key() if key is None else key
@@ -170,10 +174,12 @@ def verify(cls: type[Message], payload: bytes | bytearray | memoryview,
     if key is not None and f.algorithm != MAC:
         raise IntegrityError(f"{cls.__name__} from {f.sender!r} carries no MAC; the run has a key")
     if key is None and f.algorithm == MAC:
-        raise IntegrityError(f"{cls.__name__} from {f.sender!r} carries a MAC; no run key is "
-                             "configured here")
-    want = _tag(f.algorithm, cls.DESCRIPTOR.full_name, f.sender.encode("ascii", "replace"),
-                f.body, key)
+        raise IntegrityError(
+            f"{cls.__name__} from {f.sender!r} carries a MAC; no run key is configured here"
+        )
+    want = _tag(
+        f.algorithm, cls.DESCRIPTOR.full_name, f.sender.encode("ascii", "replace"), f.body, key
+    )
     if not hmac.compare_digest(want, f.tag):
         kind = "MAC" if f.algorithm == MAC else "checksum"
         raise IntegrityError(f"{cls.__name__} from {f.sender!r} fails its {kind}")
@@ -184,12 +190,17 @@ def encode(msg: Message, key: bytes | None = None) -> bytes:
     """Serialize a message (its header must already be set) into a frame tagged for the run
     (MAC under ``key``, default the run key; a checksum when there is none)."""
     sender = msg.header.sender if msg.HasField("header") else ""  # type: ignore[attr-defined]
-    return frame(msg.SerializeToString(), msg.DESCRIPTOR.full_name, sender,
-                 run_key() if key is None else key)
+    return frame(
+        msg.SerializeToString(), msg.DESCRIPTOR.full_name, sender, run_key() if key is None else key
+    )
 
 
-def decode(cls: type[M], payload: bytes | bytearray | memoryview, run_id: str | None = None,
-           key: bytes | None = None) -> M:
+def decode(
+    cls: type[M],
+    payload: bytes | bytearray | memoryview,
+    run_id: str | None = None,
+    key: bytes | None = None,
+) -> M:
     """Verify the frame of ``payload``, parse its body as ``cls`` and check its header; raises
     ``BadMessage`` (``IntegrityError`` for a failed integrity check)."""
     f = verify(cls, payload, key)
@@ -206,8 +217,9 @@ def decode(cls: type[M], payload: bytes | bytearray | memoryview, run_id: str | 
             f"{cls.__name__} schema version {hdr.schema_version}, expected {SCHEMA_VERSION}"
         )
     if hdr.sender.encode("ascii", "replace")[:MAX_SENDER_BYTES].decode("ascii") != f.sender:
-        raise BadMessage(f"{cls.__name__} header sender {hdr.sender!r} is not the frame's "
-                         f"{f.sender!r}")
+        raise BadMessage(
+            f"{cls.__name__} header sender {hdr.sender!r} is not the frame's {f.sender!r}"
+        )
     if run_id is not None and hdr.run_id != run_id:
         raise BadMessage(f"{cls.__name__} from run {hdr.run_id!r}, expected {run_id!r}")
     return msg

@@ -34,9 +34,18 @@ def main() -> None:
         ret += r
         rescues = int(info.get("rescues", 0))
     env.close()
-    print(json.dumps({"env": a.env, "steps": a.steps, "violation_rate": float(unsafe.mean()),
-                      "rescues": rescues, "rescues_per_1000_steps": 1000 * rescues / a.steps,
-                      "return_per_step": ret / a.steps}))
+    print(
+        json.dumps(
+            {
+                "env": a.env,
+                "steps": a.steps,
+                "violation_rate": float(unsafe.mean()),
+                "rescues": rescues,
+                "rescues_per_1000_steps": 1000 * rescues / a.steps,
+                "return_per_step": ret / a.steps,
+            }
+        )
+    )
 
 
 if __name__ == "__main__":

@@ -1,6 +1,6 @@
 """Summarise a run directory's metrics over time as a Markdown table (for docs/RESULTS.md).
 
-    .venv/bin/python scripts/run_summary.py runs/<run_id> [--every-min 5]
+.venv/bin/python scripts/run_summary.py runs/<run_id> [--every-min 5]
 """
 
 from __future__ import annotations
@@ -38,8 +38,10 @@ def main() -> None:
     collectors = [k for k in series if k.startswith("collector-")]
     t0 = min(r["t"] for rows in series.values() for r in rows[:1])
     t1 = max(r["t"] for rows in series.values() for r in rows[-1:])
-    print("| minutes | env steps | updates | violation rate (per collector) | rescues | "
-          "repertoire size | δ | entropy bound | replay ratio |")
+    print(
+        "| minutes | env steps | updates | violation rate (per collector) | rescues | "
+        "repertoire size | δ | entropy bound | replay ratio |"
+    )
     print("|---|---|---|---|---|---|---|---|---|")
     t = t0
     while True:
@@ -52,9 +54,11 @@ def main() -> None:
         resc = sum(int(c["scalars"]["rescues"]) for c in cs if c)
         ls = lr["scalars"] if lr else {}
         rs = rr["scalars"] if rr else {}
-        print(f"| {(t - t0) / 60:.0f} | {steps} | {ls.get('updates', 0):.0f} | {viol} | {resc} | "
-              f"{rs.get('size', 0):.0f} | {rs.get('delta', 0):.3f} | "
-              f"{rs.get('entropy_bound', 0):.3f} | {ls.get('replay_ratio', 0):.2f} |")
+        print(
+            f"| {(t - t0) / 60:.0f} | {steps} | {ls.get('updates', 0):.0f} | {viol} | {resc} | "
+            f"{rs.get('size', 0):.0f} | {rs.get('delta', 0):.3f} | "
+            f"{rs.get('entropy_bound', 0):.3f} | {ls.get('replay_ratio', 0):.2f} |"
+        )
         if t >= t1:
             break
 

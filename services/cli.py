@@ -9,10 +9,12 @@ import sys
 def main(argv: list[str] | None = None) -> None:
     args = list(sys.argv[1:] if argv is None else argv)
     if not args or args[0] in ("-h", "--help"):
-        print("usage: ursa {up,eval,export,secrets} ...\n\n  up       start the whole stack on "
-              "this machine\n  eval     reproduce the paper's figures from a run directory\n"
-              "  export   write a run's policy as ONNX with a JSON of its interface\n"
-              "  secrets  write a run's bus key and router credentials (<run>/secrets)")
+        print(
+            "usage: ursa {up,eval,export,secrets} ...\n\n  up       start the whole stack on "
+            "this machine\n  eval     reproduce the paper's figures from a run directory\n"
+            "  export   write a run's policy as ONNX with a JSON of its interface\n"
+            "  secrets  write a run's bus key and router credentials (<run>/secrets)"
+        )
         raise SystemExit(0 if args else 2)
     cmd, rest = args[0], args[1:]
     if cmd == "up":

@@ -62,8 +62,13 @@ class Child:
         self.name = name
         self.cmd = cmd
         self.proc = subprocess.Popen(
-            cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, env=env,
-            start_new_session=True, bufsize=1, text=True,
+            cmd,
+            stdout=subprocess.PIPE,
+            stderr=subprocess.STDOUT,
+            env=env,
+            start_new_session=True,
+            bufsize=1,
+            text=True,
         )
         self.color = color
         self.ready = threading.Event()
@@ -135,18 +140,27 @@ def up(args: UpArgs) -> int:
         start("repertoire", "services.repertoire", [])
         start("learner", "services.learner", [])
         for i in range(args.collectors):
-            start(f"collector-{i}", "services.collector",
-                  ["--collector-id", f"c{i}", "--seed", str(i)])
+            start(
+                f"collector-{i}",
+                "services.collector",
+                ["--collector-id", f"c{i}", "--seed", str(i)],
+            )
         if args.evaluator:
             start("evaluator", "services.evaluator", ["--collector-id", "eval"])
         if args.dashboard:
-            start("dashboard", "services.dashboard",
-                  ["--host", args.host, "--port", str(args.dashboard_port)])
+            start(
+                "dashboard",
+                "services.dashboard",
+                ["--host", args.host, "--port", str(args.dashboard_port)],
+            )
         if args.api:
             start("api", "services.api", ["--host", args.host, "--port", str(args.api_port)])
         shown = args.host if args.host not in ("0.0.0.0", "") else "localhost"
-        print(f"\nURSA is up (run {args.run_id}, preset {args.preset}, env {args.env}, "
-              f"{args.collectors} collectors)", flush=True)
+        print(
+            f"\nURSA is up (run {args.run_id}, preset {args.preset}, env {args.env}, "
+            f"{args.collectors} collectors)",
+            flush=True,
+        )
         if args.dashboard:
             print(f"  dashboard: http://{shown}:{args.dashboard_port}", flush=True)
         if args.api:
@@ -155,9 +169,15 @@ def up(args: UpArgs) -> int:
         print(f"  router:    {endpoint}\n  run dir:   {run_dir}", flush=True)
         print(f"  metrics:   {tensorboard_command(run_dir)}", flush=True)
         if args.wandb:
-            print(f"  W&B:       {args.wandb_mode}, files in {run_dir / 'wandb'}"
-                  + (f" (upload: wandb sync {run_dir / 'wandb'}/offline-run-*)"
-                     if args.wandb_mode == "offline" else ""), flush=True)
+            print(
+                f"  W&B:       {args.wandb_mode}, files in {run_dir / 'wandb'}"
+                + (
+                    f" (upload: wandb sync {run_dir / 'wandb'}/offline-run-*)"
+                    if args.wandb_mode == "offline"
+                    else ""
+                ),
+                flush=True,
+            )
         print("  Ctrl-C stops everything.\n", flush=True)
 
     while not stopping.is_set():

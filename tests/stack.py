@@ -52,8 +52,12 @@ class Proc:
         self._log = open(self.log_path, "ab")  # noqa: SIM115 - closed in stop()
         full_env = {**os.environ, "PYTHONUNBUFFERED": "1", **(env or {})}
         self.popen = subprocess.Popen(
-            [sys.executable, *args], stdout=self._log, stderr=subprocess.STDOUT, cwd=ROOT,
-            env=full_env, start_new_session=True,
+            [sys.executable, *args],
+            stdout=self._log,
+            stderr=subprocess.STDOUT,
+            cwd=ROOT,
+            env=full_env,
+            start_new_session=True,
         )
 
     @property
@@ -105,12 +109,21 @@ class Stack:
         return self.runs / self.run_id
 
     def common(self) -> list[str]:
-        return ["--preset", self.preset, "--env", self.env, "--bus.router", self.endpoint,
-                "--run.run-id", self.run_id, "--run.root", str(self.runs)]
+        return [
+            "--preset",
+            self.preset,
+            "--env",
+            self.env,
+            "--bus.router",
+            self.endpoint,
+            "--run.run-id",
+            self.run_id,
+            "--run.root",
+            str(self.runs),
+        ]
 
     def start_router(self) -> Proc:
-        p = Proc("router", ["-m", "services.router", "--listen", self.endpoint],
-                 self.tmp / "logs")
+        p = Proc("router", ["-m", "services.router", "--listen", self.endpoint], self.tmp / "logs")
         self.procs["router"] = p
         wait_port(self.port)
         return p
@@ -132,8 +145,10 @@ class Stack:
 
     def logs(self, tail: int | None = 4000) -> str:
         """Every process's log (its last ``tail`` characters; None: all of it)."""
-        return "\n".join(f"===== {n} ({p.log_path})\n{p.log()[-tail:] if tail else p.log()}"
-                         for n, p in self.procs.items())
+        return "\n".join(
+            f"===== {n} ({p.log_path})\n{p.log()[-tail:] if tail else p.log()}"
+            for n, p in self.procs.items()
+        )
 
 
 class StatsWatcher:

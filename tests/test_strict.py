@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import pytest
 
-INNER = '''
+INNER = """
 import pytest
 
 def test_runs():
@@ -25,20 +25,22 @@ def test_xfails():
 @pytest.mark.slow
 def test_deselected():
     pass
-'''
+"""
 MODULE_SKIP = 'import pytest\npytest.importorskip("no_such_module_ursa")\n\ndef test_x(): pass\n'
 
 
-def _run(pytester: pytest.Pytester, strict: str | None,
-         monkeypatch: pytest.MonkeyPatch) -> pytest.RunResult:
+def _run(
+    pytester: pytest.Pytester, strict: str | None, monkeypatch: pytest.MonkeyPatch
+) -> pytest.RunResult:
     if strict is None:
         monkeypatch.delenv("URSA_STRICT", raising=False)
     else:
         monkeypatch.setenv("URSA_STRICT", strict)
     pytester.makepyfile(test_inner=INNER, test_module_skip=MODULE_SKIP)
     pytester.makeini("[pytest]\nmarkers =\n    slow: slow\n")
-    return pytester.runpytest_inprocess("-p", "tests.strict", "-ra", "-m", "not slow",
-                                        "--continue-on-collection-errors")
+    return pytester.runpytest_inprocess(
+        "-p", "tests.strict", "-ra", "-m", "not slow", "--continue-on-collection-errors"
+    )
 
 
 def test_strict_mode_turns_every_skip_into_a_failure(

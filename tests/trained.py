@@ -23,13 +23,13 @@ from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 from typing import Any
 
-from ursa.config import PREFILL, TRAIN_STEPS, Config, preset
+from ursa.config import PREFILL, TRAIN_STEPS, Config, PresetName, preset
 from ursa.learner_config import Mode
 from ursa.plain import to_plain
 
 SEEDS = (0, 1, 2)
 """Seeds of the URSA runs the learning tests judge (median and worst seed)."""
-PRESET = "point"
+PRESET: PresetName = "point"
 PREFILL_STEPS = PREFILL[PRESET]
 ENV_STEPS = TRAIN_STEPS[PRESET]
 
@@ -37,9 +37,7 @@ ENV_STEPS = TRAIN_STEPS[PRESET]
 def point_config(mode: Mode, seed: int = 0) -> Config:
     """The core config of a run: the ``point`` preset, ``mode``, the learner seeded ``seed``."""
     cfg = preset(PRESET, "point")
-    return dataclasses.replace(
-        cfg, learner=dataclasses.replace(cfg.learner, mode=mode, seed=seed)
-    )
+    return dataclasses.replace(cfg, learner=dataclasses.replace(cfg.learner, mode=mode, seed=seed))
 
 
 SKILL_PERIOD = point_config("ursa-supervised").collector.skill_period

@@ -49,8 +49,11 @@ class Box:
 
     def __post_init__(self) -> None:
         lo, hi = np.asarray(self.low, float), np.asarray(self.high, float)
-        if lo.shape != hi.shape or lo.ndim != 1 or not (np.isfinite(lo).all()
-                                                         and np.isfinite(hi).all()):
+        if (
+            lo.shape != hi.shape
+            or lo.ndim != 1
+            or not (np.isfinite(lo).all() and np.isfinite(hi).all())
+        ):
             raise ValueError(f"a Box needs finite low/high of one length, got {self}")
         if (lo > hi).any():
             raise ValueError(f"Box low > high: {self}")
@@ -70,8 +73,10 @@ class Box:
     def widened(self, factor: float = 1.0) -> Box:
         """The box grown by ``factor`` × its width on each side."""
         w = [(h - lo) * factor for lo, h in zip(self.low, self.high, strict=True)]
-        return Box(tuple(lo - d for lo, d in zip(self.low, w, strict=True)),
-                   tuple(h + d for h, d in zip(self.high, w, strict=True)))
+        return Box(
+            tuple(lo - d for lo, d in zip(self.low, w, strict=True)),
+            tuple(h + d for h, d in zip(self.high, w, strict=True)),
+        )
 
     def contains(self, x: np.ndarray) -> np.ndarray:
         """Mask (...) of the rows of x (..., D) that are finite and inside the box."""
@@ -97,8 +102,10 @@ def check(name: str, x: np.ndarray, box: Box) -> np.ndarray:
         lo, hi = np.asarray(box.low), np.asarray(box.high)
         with np.errstate(invalid="ignore"):
             col = int(np.argmax(~((row >= lo) & (row <= hi))))
-        raise OutOfBounds(f"{name}{list(bad.tolist())}[{col}] = {float(row[col])!r} outside "
-                          f"[{lo[col]:g}, {hi[col]:g}]")
+        raise OutOfBounds(
+            f"{name}{list(bad.tolist())}[{col}] = {float(row[col])!r} outside "
+            f"[{lo[col]:g}, {hi[col]:g}]"
+        )
     return a
 
 
@@ -135,12 +142,20 @@ def _a1_boxes() -> tuple[Box, dict[str, Box]]:
     two_pi = 2.0 * np.pi
     joints = Box.uniform(12, -two_pi, two_pi)
     height = Box((-1.0,), (10.0,))
-    obs = Box.concat(joints, Box.uniform(12, -1000.0, 1000.0), Box.uniform(3, -1.0001, 1.0001),
-                     Box.uniform(3, -1000.0, 1000.0), Box.uniform(3, -100.0, 100.0), height,
-                     Box.uniform(12, -1.0, 1.0))
-    feats = {"vae_input": Box.concat(joints, height),
-             "velocity": Box((-100.0, -1000.0), (100.0, 1000.0)),
-             "contacts": Box.uniform(4, 0.0, 1.0)}
+    obs = Box.concat(
+        joints,
+        Box.uniform(12, -1000.0, 1000.0),
+        Box.uniform(3, -1.0001, 1.0001),
+        Box.uniform(3, -1000.0, 1000.0),
+        Box.uniform(3, -100.0, 100.0),
+        height,
+        Box.uniform(12, -1.0, 1.0),
+    )
+    feats = {
+        "vae_input": Box.concat(joints, height),
+        "velocity": Box((-100.0, -1000.0), (100.0, 1000.0)),
+        "contacts": Box.uniform(4, 0.0, 1.0),
+    }
     return obs, feats
 
 
@@ -163,9 +178,24 @@ def declared(cfg: Config) -> Declared:
         skills = Box.uniform(cfg.repertoire.dim, -LATENT_BOUND, LATENT_BOUND)
     else:
         features = skills = feats[cfg.feature]
-    return Declared(obs=obs, action=action, features=features, skills=skills,
-                    samples=skills.widened(1.0), feature_dims=feats)
+    return Declared(
+        obs=obs,
+        action=action,
+        features=features,
+        skills=skills,
+        samples=skills.widened(1.0),
+        feature_dims=feats,
+    )
 
 
-__all__ = ["LATENT_BOUND", "STAT_BOUND", "WEIGHT_BOUND", "Box", "Declared", "OutOfBounds",
-           "check", "check_finite", "declared"]
+__all__ = [
+    "LATENT_BOUND",
+    "STAT_BOUND",
+    "WEIGHT_BOUND",
+    "Box",
+    "Declared",
+    "OutOfBounds",
+    "check",
+    "check_finite",
+    "declared",
+]

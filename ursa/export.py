@@ -75,8 +75,14 @@ class _Graph:
     def norm_linear(self, x: str, p: NormLinear) -> str:
         # x @ w is already centred (see NormLinear): LayerNorm's own centring subtracts ~0
         y = self.op("MatMul", x, self.const(p.w, "w"))
-        return self.op("LayerNormalization", y, self.const(p.scale, "ln_scale"),
-                       self.const(p.shift, "ln_shift"), axis=-1, epsilon=p.eps)
+        return self.op(
+            "LayerNormalization",
+            y,
+            self.const(p.scale, "ln_scale"),
+            self.const(p.shift, "ln_shift"),
+            axis=-1,
+            epsilon=p.eps,
+        )
 
     def silu(self, x: str) -> str:
         return self.op("Mul", x, self.op("Sigmoid", x))
@@ -86,8 +92,11 @@ class _Graph:
             x = self.silu(self.norm_linear(x, layer))
         if p.head_w is not None:
             assert p.head_b is not None
-            x = self.op("Add", self.op("MatMul", x, self.const(p.head_w, "head_w")),
-                        self.const(p.head_b, "head_b"))
+            x = self.op(
+                "Add",
+                self.op("MatMul", x, self.const(p.head_w, "head_w")),
+                self.const(p.head_b, "head_b"),
+            )
         return x
 
     def symlog(self, x: str) -> str:
@@ -95,8 +104,9 @@ class _Graph:
         return self.op("Mul", self.op("Sign", x), mag)
 
     def split(self, x: str, sizes: list[int]) -> list[str]:
-        return self.ops("Split", [x, self.const(np.asarray(sizes, np.int64), "split")],
-                        len(sizes), axis=-1)
+        return self.ops(
+            "Split", [x, self.const(np.asarray(sizes, np.int64), "split")], len(sizes), axis=-1
+        )
 
     def gru(self, x: str, h: str, p: policy_np.GRUParams) -> str:
         parts = self.norm_linear(self.op("Concat", x, h, axis=-1), p.gates)
@@ -111,9 +121,15 @@ class _Graph:
         """Inverse-CDF one-hot sample (B, S, K) as :func:`ursa.policy_np.sample_onehot`."""
         from onnx import TensorProto
 
-        cdf = self.op("Cast", self.op("CumSum", self.op("Cast", probs, to=TensorProto.DOUBLE),
-                                      self.const(np.asarray(-1, np.int64), "axis")),
-                      to=TensorProto.FLOAT)
+        cdf = self.op(
+            "Cast",
+            self.op(
+                "CumSum",
+                self.op("Cast", probs, to=TensorProto.DOUBLE),
+                self.const(np.asarray(-1, np.int64), "axis"),
+            ),
+            to=TensorProto.FLOAT,
+        )
         last = self.const(np.asarray([-1], np.int64), "axes")
         below = self.op("Less", cdf, self.op("Unsqueeze", u, last))
         idx = self.op("ReduceSum", self.op("Cast", below, to=TensorProto.INT64), last, keepdims=0)
@@ -139,30 +155,50 @@ def build_onnx(params: PolicyParams, obs_dim: int, act_dim: int, skill_dim: int)
     logits = g.op("Reshape", logits, g.const(np.asarray([-1, s, k], np.int64), "shape"))
     probs = g.op("Softmax", logits, axis=-1)
     if p.unimix > 0.0:
-        probs = g.op("Add", g.op("Mul", probs, g.const(np.float32(1.0 - p.unimix))),
-                     g.const(np.float32(p.unimix / k)))
+        probs = g.op(
+            "Add",
+            g.op("Mul", probs, g.const(np.float32(1.0 - p.unimix))),
+            g.const(np.float32(p.unimix / k)),
+        )
     z = g.sample_onehot(probs, "u", k)
     z = g.op("Reshape", z, g.const(np.asarray([-1, s * k], np.int64), "shape"), out="z_next")
     # actor at [h', z', skill]: mean and std (the +2 of the std is in the head's bias)
     out = g.mlp(g.op("Concat", h, z, "skill", axis=-1), p.actor)
     mean, std_logit = g.split(out, [act_dim, act_dim])
     g.op("Identity", mean, out="mean")
-    std = g.op("Add", g.op("Mul", g.op("Sigmoid", std_logit),
-                           g.const(np.float32(p.max_std - p.min_std))),
-               g.const(np.float32(p.min_std)), out="std")
+    std = g.op(
+        "Add",
+        g.op("Mul", g.op("Sigmoid", std_logit), g.const(np.float32(p.max_std - p.min_std))),
+        g.const(np.float32(p.min_std)),
+        out="std",
+    )
     g.op("Tanh", g.op("Add", mean, g.op("Mul", std, "eps")), out="action")
 
     f = TensorProto.FLOAT
-    dims = {"obs": obs_dim, "h": deter, "z": s * k, "prev_action": act_dim, "skill": skill_dim,
-            "u": s, "eps": act_dim, "action": act_dim, "h_next": deter, "z_next": s * k,
-            "mean": act_dim, "std": act_dim}
+    dims = {
+        "obs": obs_dim,
+        "h": deter,
+        "z": s * k,
+        "prev_action": act_dim,
+        "skill": skill_dim,
+        "u": s,
+        "eps": act_dim,
+        "action": act_dim,
+        "h_next": deter,
+        "z_next": s * k,
+        "mean": act_dim,
+        "std": act_dim,
+    }
     graph = helper.make_graph(
-        g.nodes, "ursa_policy_step",
+        g.nodes,
+        "ursa_policy_step",
         [helper.make_tensor_value_info(n, f, ["B", dims[n]]) for n in INPUTS],
         [helper.make_tensor_value_info(n, f, ["B", dims[n]]) for n in OUTPUTS],
-        initializer=g.inits)
-    model = helper.make_model(graph, opset_imports=[helper.make_opsetid("", OPSET)],
-                              producer_name="ursa export")
+        initializer=g.inits,
+    )
+    model = helper.make_model(
+        graph, opset_imports=[helper.make_opsetid("", OPSET)], producer_name="ursa export"
+    )
     model.ir_version = 8  # onnxruntime reads IR 8 at opset 17 everywhere
     checker.check_model(model, full_check=True)
     return model
@@ -183,10 +219,13 @@ def interface(policy: Policy, cfg: Any, skill: np.ndarray, meta: dict[str, Any])
             "standing_pose_rad": list(ac.standing_pose) * 4,
             "joint_low_rad": list(ac.joint_low) * 4,
             "joint_high_rad": list(ac.joint_high) * 4,
-            "filter": ({"butterworth_order": 2, "cutoff_hz": ac.action_filter_hz}
-                       if ac.action_filter_hz is not None else None),
+            "filter": (
+                {"butterworth_order": 2, "cutoff_hz": ac.action_filter_hz}
+                if ac.action_filter_hz is not None
+                else None
+            ),
             "doc": "stand_centered: 0 is the standing pose, -1/+1 the ends of [low, high], "
-                   "piecewise linear; linear: -1..1 onto [low, high] (ursa.envs.a1)",
+            "piecewise linear; linear: -1..1 onto [low, high] (ursa.envs.a1)",
         }
         control_hz = float(ac.control_hz)
     else:
@@ -197,9 +236,22 @@ def interface(policy: Policy, cfg: Any, skill: np.ndarray, meta: dict[str, Any])
         "format": "ursa-onnx-policy-1",
         "env": env,
         "control_hz": control_hz,
-        "inputs": {n: dim for n, dim in zip(INPUTS, (
-            policy.obs_dim, int(p.h_init.shape[0]), p.stoch * p.classes, policy.act_dim,
-            policy.skill_dim, p.stoch, policy.act_dim), strict=True)},
+        "inputs": {
+            n: dim
+            for n, dim in zip(
+                INPUTS,
+                (
+                    policy.obs_dim,
+                    int(p.h_init.shape[0]),
+                    p.stoch * p.classes,
+                    policy.act_dim,
+                    policy.skill_dim,
+                    p.stoch,
+                    policy.act_dim,
+                ),
+                strict=True,
+            )
+        },
         "outputs": list(OUTPUTS),
         "observation_layout": layout,
         "action": action,
@@ -210,8 +262,9 @@ def interface(policy: Policy, cfg: Any, skill: np.ndarray, meta: dict[str, Any])
     }
 
 
-def export_policy(policy: Policy, cfg: Any, skill: np.ndarray, out: Path,
-                  meta: dict[str, Any] | None = None) -> tuple[Path, Path]:
+def export_policy(
+    policy: Policy, cfg: Any, skill: np.ndarray, out: Path, meta: dict[str, Any] | None = None
+) -> tuple[Path, Path]:
     """Write ``out`` (.onnx) and ``out`` with suffix .json; returns both paths."""
     import onnx
 
@@ -245,15 +298,20 @@ class OnnxPolicy:
         return dict(zip(OUTPUTS, self.session.run(list(OUTPUTS), feed), strict=True))
 
 
-def export_run(run: str | Path, out: Path, skill_id: int | None = None,
-               z: list[float] | None = None) -> tuple[Path, Path]:
+def export_run(
+    run: str | Path, out: Path, skill_id: int | None = None, z: list[float] | None = None
+) -> tuple[Path, Path]:
     """Export the latest checkpoint of a run with a repertoire skill (by id) or a given z."""
     from ursa.eval.loading import load_run
 
     loaded = load_run(run)
     policy = loaded.require_policy()
-    meta: dict[str, Any] = {"run": loaded.name, "updates": loaded.updates,
-                            "mode": loaded.mode, "policy_version": policy.version}
+    meta: dict[str, Any] = {
+        "run": loaded.name,
+        "updates": loaded.updates,
+        "mode": loaded.mode,
+        "policy_version": policy.version,
+    }
     if z is not None:
         skill = np.asarray(z, np.float32)
         meta["skill_source"] = "z"
@@ -282,11 +340,17 @@ def main(argv: list[str] | None = None) -> int:
     group = ap.add_mutually_exclusive_group()
     group.add_argument("--skill", type=int, help="id of a repertoire skill to execute")
     group.add_argument("--z", type=float, nargs="+", help="the skill vector itself")
-    ap.add_argument("--out", type=Path, default=None,
-                    help="output .onnx (default: <run>/export/policy.onnx); the JSON goes beside")
+    ap.add_argument(
+        "--out",
+        type=Path,
+        default=None,
+        help="output .onnx (default: <run>/export/policy.onnx); the JSON goes beside",
+    )
     a = ap.parse_args(argv)
-    out = a.out or (Path(a.run) if Path(a.run).is_dir() else Path(a.run).parent) / "export" \
-        / "policy.onnx"
+    out = (
+        a.out
+        or (Path(a.run) if Path(a.run).is_dir() else Path(a.run).parent) / "export" / "policy.onnx"
+    )
     try:
         model, js = export_run(a.run, out, skill_id=a.skill, z=a.z)
     except (ValueError, FileNotFoundError) as e:

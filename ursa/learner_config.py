@@ -194,8 +194,8 @@ class LearnerConfig:
     def point(cls, **overrides: object) -> LearnerConfig:
         """The point-env learning recipe (the learning tests' and ``--preset point``): ``tiny``
         sizes with faster learning rates, 128 imagination starts, a high replay ratio, shorter
-        horizons (γ 0.98, cost γ 0.9) so that 3000 updates suffice, the skill constraint enforced
-        at δ/2 and the REINFORCE actor; docs/learner.md gives the measurements behind each."""
+        horizons (γ 0.98, cost γ 0.9) so that 3000 updates suffice and the skill constraint
+        enforced at δ/2; docs/learner.md gives the measurements behind each."""
         base = cls.tiny(
             imag_starts=128,
             model_lr=3e-4,

@@ -611,8 +611,14 @@ class Repertoire:
         function cannot be executed."""
         self._fresh()
         if self.bounds is not None:
-            return kde.kde_sample_in_box(self.skills, self._cov, n, rng,
-                                         np.asarray(self.bounds.low), np.asarray(self.bounds.high))
+            return kde.kde_sample_in_box(
+                self.skills,
+                self._cov,
+                n,
+                rng,
+                np.asarray(self.bounds.low),
+                np.asarray(self.bounds.high),
+            )
         if self._n == 0:
             return kde.kde_sample(np.zeros((0, self.config.dim)), self._cov, n, rng, self._chol)
         centres = self._p[self._id_order()[rng.integers(0, self._n, size=n)]]

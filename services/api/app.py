@@ -45,8 +45,9 @@ evaluator's queryable. 422: invalid input; 404: unknown skill; 503: a peer is mi
 
 def invalid(where: tuple[str | int, ...], msg: str, value: Any = None) -> NoReturn:
     """Raise a 422 in FastAPI's own validation-error shape."""
-    raise RequestValidationError([{"loc": where, "msg": msg, "type": "value_error",
-                                   "input": value}])
+    raise RequestValidationError(
+        [{"loc": where, "msg": msg, "type": "value_error", "input": value}]
+    )
 
 
 def unavailable(reason: str) -> NoReturn:
@@ -54,8 +55,12 @@ def unavailable(reason: str) -> NoReturn:
 
 
 def skill_out(snap: SnapshotView, row: int) -> m.Skill:
-    return m.Skill(id=int(snap.ids[row]), z=[float(v) for v in snap.skills[row]],
-                   age=int(snap.ages[row]), nn_distance=finite(float(snap.nn_dist[row])))
+    return m.Skill(
+        id=int(snap.ids[row]),
+        z=[float(v) for v in snap.skills[row]],
+        age=int(snap.ages[row]),
+        nn_distance=finite(float(snap.nn_dist[row])),
+    )
 
 
 def jsonable_array(a: np.ndarray) -> Any:
@@ -98,23 +103,31 @@ def create_app(state: ApiState) -> FastAPI:
     """The app over ``state``; see the module docstring."""
     app = FastAPI(title="URSA skills API", version="1.0.0", description=DESCRIPTION)
     live = state.live
-    e503: dict[int | str, dict[str, Any]] = {503: {"model": m.Error,
-                                                   "description": "A peer is missing"}}
+    e503: dict[int | str, dict[str, Any]] = {
+        503: {"model": m.Error, "description": "A peer is missing"}
+    }
 
     class SampleRequest(BaseModel):
         model_config = ConfigDict(extra="forbid", strict=True)
-        n: int = Field(1, ge=1, le=state.max_sample,
-                       description="How many skills to draw from the repertoire's KDE")
+        n: int = Field(
+            1,
+            ge=1,
+            le=state.max_sample,
+            description="How many skills to draw from the repertoire's KDE",
+        )
         seed: m.Seed | None = Field(None, description="Seed of the draw (fresh if absent)")
 
     class EvaluateRequest(BaseModel):
         model_config = ConfigDict(extra="forbid", strict=True)
         skill: Annotated[int, Field(ge=0, le=m.MAX_SEED)] | m.SkillVector = Field(
-            description="A skill id from the repertoire, or coordinates in skill space (D,)")
-        steps: int = Field(250, ge=1, le=state.max_eval_steps,
-                           description="Control steps to run the skill for")
-        damage: str | None = Field(None, max_length=64,
-                                   description="Damage scenario (A1); null/'none': intact")
+            description="A skill id from the repertoire, or coordinates in skill space (D,)"
+        )
+        steps: int = Field(
+            250, ge=1, le=state.max_eval_steps, description="Control steps to run the skill for"
+        )
+        damage: str | None = Field(
+            None, max_length=64, description="Damage scenario (A1); null/'none': intact"
+        )
         seed: m.Seed | None = Field(None, description="Seed of the environment")
 
     def need_snapshot() -> SnapshotView:
@@ -134,8 +147,10 @@ def create_app(state: ApiState) -> FastAPI:
         # FastAPI answers 400 to a body it cannot parse (e.g. not UTF-8): a client's mistake
         # like any other invalid input, so 422 with the reason
         if exc.status_code == 400:
-            return JSONResponse({"detail": [{"loc": ["body"], "msg": str(exc.detail),
-                                             "type": "value_error"}]}, status_code=422)
+            return JSONResponse(
+                {"detail": [{"loc": ["body"], "msg": str(exc.detail), "type": "value_error"}]},
+                status_code=422,
+            )
         return await http_exception_handler(request, exc)
 
     @app.exception_handler(Exception)
@@ -151,29 +166,44 @@ def create_app(state: ApiState) -> FastAPI:
         """The skills of the latest repertoire snapshot, ordered by id."""
         snap = need_snapshot()
         rows = snap.page(offset, limit)
-        return m.SkillPage(items=[skill_out(snap, int(r)) for r in rows], total=snap.size,
-                           offset=offset, limit=limit, dim=snap.dim,
-                           snapshot_version=snap.version, delta=finite(snap.delta),
-                           entropy_bound=finite(snap.entropy_bound))
+        return m.SkillPage(
+            items=[skill_out(snap, int(r)) for r in rows],
+            total=snap.size,
+            offset=offset,
+            limit=limit,
+            dim=snap.dim,
+            snapshot_version=snap.version,
+            delta=finite(snap.delta),
+            entropy_bound=finite(snap.entropy_bound),
+        )
 
     @app.get("/skills/nearest", response_model=m.NearestReply, responses=e503, tags=["skills"])
     def nearest(
-        z: Annotated[list[Annotated[str, Field(pattern=Z_PATTERN, max_length=4096)]],
-                     Query(description="Coordinates: comma-separated floats (z=0.1,0.2) or "
-                                       "repeated (z=0.1&z=0.2)")],
+        z: Annotated[
+            list[Annotated[str, Field(pattern=Z_PATTERN, max_length=4096)]],
+            Query(
+                description="Coordinates: comma-separated floats (z=0.1,0.2) or "
+                "repeated (z=0.1&z=0.2)"
+            ),
+        ],
         k: Annotated[int, Query(ge=1, le=100, description="How many neighbours")] = 1,
     ) -> m.NearestReply:
         """The k skills nearest z in the repertoire's Mahalanobis metric (Σ of the snapshot)."""
         q = parse_z(z)
         snap = need_snapshot()
         if len(q) != snap.dim:
-            invalid(("query", "z"), f"z has {len(q)} coordinates, the skills have {snap.dim}",
-                    z)
+            invalid(("query", "z"), f"z has {len(q)} coordinates, the skills have {snap.dim}", z)
         rows, dist = snap.nearest(q, k)
         return m.NearestReply(
-            query=q.tolist(), k=k, delta=finite(snap.delta), snapshot_version=snap.version,
-            results=[m.Neighbour(id=int(snap.ids[r]), z=snap.skills[r].tolist(),
-                                 distance=float(d)) for r, d in zip(rows, dist, strict=True)])
+            query=q.tolist(),
+            k=k,
+            delta=finite(snap.delta),
+            snapshot_version=snap.version,
+            results=[
+                m.Neighbour(id=int(snap.ids[r]), z=snap.skills[r].tolist(), distance=float(d))
+                for r, d in zip(rows, dist, strict=True)
+            ],
+        )
 
     @app.post("/skills/sample", response_model=m.SampleReply, responses=e503, tags=["skills"])
     def sample(body: SampleRequest) -> m.SampleReply:
@@ -189,28 +219,45 @@ def create_app(state: ApiState) -> FastAPI:
             except codec.BadMessage:
                 skills = np.zeros((0, 0))
             if skills.ndim == 2 and len(skills) == body.n and np.all(np.isfinite(skills)):
-                return m.SampleReply(skills=skills.tolist(), source="repertoire",
-                                     delta=finite(reply.delta),
-                                     snapshot_version=int(reply.snapshot_version))
+                return m.SampleReply(
+                    skills=skills.tolist(),
+                    source="repertoire",
+                    delta=finite(reply.delta),
+                    snapshot_version=int(reply.snapshot_version),
+                )
         if snap is None or snap.size == 0:
-            why = reply.error if reply is not None and reply.error else (
-                "no repertoire snapshot yet" if snap is None else "the repertoire is empty")
+            why = (
+                reply.error
+                if reply is not None and reply.error
+                else ("no repertoire snapshot yet" if snap is None else "the repertoire is empty")
+            )
             unavailable(f"cannot sample: {why}")
         rng = np.random.default_rng(body.seed)
         skills = kde_sample(snap.skills, snap.cov, body.n, rng)
-        return m.SampleReply(skills=skills.tolist(), source="snapshot",
-                             delta=finite(snap.delta), snapshot_version=snap.version)
+        return m.SampleReply(
+            skills=skills.tolist(),
+            source="snapshot",
+            delta=finite(snap.delta),
+            snapshot_version=snap.version,
+        )
 
     # ":int": only digits match, so "/skills/sample" and "/skills/nearest" never reach it
-    @app.get("/skills/{skill_id:int}", response_model=m.Skill, tags=["skills"],
-             responses={404: {"model": m.Error, "description": "No such skill"}, **e503})
+    @app.get(
+        "/skills/{skill_id:int}",
+        response_model=m.Skill,
+        tags=["skills"],
+        responses={404: {"model": m.Error, "description": "No such skill"}, **e503},
+    )
     def get_skill(skill_id: Annotated[int, Path(ge=0, le=m.MAX_SEED)]) -> m.Skill:
         """One skill of the latest snapshot by id."""
         snap = need_snapshot()
         row = snap.index_of(skill_id)
         if row is None:
-            raise HTTPException(404, detail=f"skill {skill_id} is not in the repertoire "
-                                            f"(snapshot version {snap.version})")
+            raise HTTPException(
+                404,
+                detail=f"skill {skill_id} is not in the repertoire "
+                f"(snapshot version {snap.version})",
+            )
         return skill_out(snap, row)
 
     @app.get("/collectors", response_model=list[m.Collector], tags=["collectors"])
@@ -221,25 +268,36 @@ def create_app(state: ApiState) -> FastAPI:
         for c in live.collectors():
             s = c.stats
             steps, rescues, pv = c.get("steps"), c.get("rescues"), c.get("policy_version")
-            out.append(m.Collector(
-                id=c.id, alive=c.alive, steps=None if steps is None else int(steps),
-                steps_per_s=c.get("steps_per_s"), violation_rate=c.get("violation_rate"),
-                rescues=None if rescues is None else int(rescues),
-                return_mean=c.get("return_mean"), damage=c.damage,
-                env=s.labels.get("env") if s else None,
-                skill=None if c.skill is None else c.skill.tolist(),
-                skill_source=s.labels.get("skill_source") if s else None,
-                policy_version=None if pv is None else int(pv),
-                stats_age_s=None if s is None else max(0.0, now - s.received)))
+            out.append(
+                m.Collector(
+                    id=c.id,
+                    alive=c.alive,
+                    steps=None if steps is None else int(steps),
+                    steps_per_s=c.get("steps_per_s"),
+                    violation_rate=c.get("violation_rate"),
+                    rescues=None if rescues is None else int(rescues),
+                    return_mean=c.get("return_mean"),
+                    damage=c.damage,
+                    env=s.labels.get("env") if s else None,
+                    skill=None if c.skill is None else c.skill.tolist(),
+                    skill_source=s.labels.get("skill_source") if s else None,
+                    policy_version=None if pv is None else int(pv),
+                    stats_age_s=None if s is None else max(0.0, now - s.received),
+                )
+            )
         return out
 
     def service_stats(e: StatsEntry, alive: bool, now: float) -> m.ServiceStats:
         return m.ServiceStats(
-            service=e.service, id=e.sid, alive=alive, stamp=e.stamp,
+            service=e.service,
+            id=e.sid,
+            alive=alive,
+            stamp=e.stamp,
             age_s=max(0.0, now - e.received),
             scalars={k: finite(v) for k, v in sorted(e.scalars.items())},
             labels=dict(e.labels),
-            arrays={k: jsonable_array(a) for k, a in sorted(e.arrays.items())})
+            arrays={k: jsonable_array(a) for k, a in sorted(e.arrays.items())},
+        )
 
     @app.get("/stats", response_model=m.StatsReply, tags=["run"])
     def stats() -> m.StatsReply:
@@ -256,8 +314,11 @@ def create_app(state: ApiState) -> FastAPI:
     @app.get("/health", response_model=m.Health, tags=["run"])
     def health() -> m.Health:
         """Always 200: whether the router is reachable, which peers are alive, the snapshot."""
-        bus = (state.backend.bus_status() if state.backend is not None
-               else {"connected": False, "router": None, "detail": "no bus (in-process app)"})
+        bus = (
+            state.backend.bus_status()
+            if state.backend is not None
+            else {"connected": False, "router": None, "detail": "no bus (in-process app)"}
+        )
         peers: dict[str, Any] = {svc: sorted(live.alive_ids(svc)) for svc in SERVICES}
         peers["collectors"] = sorted(live.alive_ids("collector"))
         snap = live.latest_snapshot()
@@ -271,14 +332,32 @@ def create_app(state: ApiState) -> FastAPI:
             problems.append("no collector alive")
         if snap is None:
             problems.append("no repertoire snapshot yet")
-        snap_info = None if snap is None else {
-            "version": snap.version, "size": snap.size, "dim": snap.dim,
-            "delta": finite(snap.delta), "age_s": max(0.0, time.time() - snap.received)}
-        return m.Health(status="degraded" if problems else "ok", problems=problems, bus=bus,
-                        peers=peers, snapshot=snap_info, uptime_s=time.time() - state.started)
+        snap_info = (
+            None
+            if snap is None
+            else {
+                "version": snap.version,
+                "size": snap.size,
+                "dim": snap.dim,
+                "delta": finite(snap.delta),
+                "age_s": max(0.0, time.time() - snap.received),
+            }
+        )
+        return m.Health(
+            status="degraded" if problems else "ok",
+            problems=problems,
+            bus=bus,
+            peers=peers,
+            snapshot=snap_info,
+            uptime_s=time.time() - state.started,
+        )
 
-    @app.post("/evaluate", response_model=m.EvaluateReply, tags=["evaluate"],
-              responses={404: {"model": m.Error, "description": "No such skill"}, **e503})
+    @app.post(
+        "/evaluate",
+        response_model=m.EvaluateReply,
+        tags=["evaluate"],
+        responses={404: {"model": m.Error, "description": "No such skill"}, **e503},
+    )
     def evaluate(body: EvaluateRequest) -> m.EvaluateReply:
         """Run a skill on the evaluation collector for ``steps`` control steps (one evaluation
         at a time; later requests wait) and return what it achieved."""
@@ -295,18 +374,28 @@ def create_app(state: ApiState) -> FastAPI:
             target = np.asarray(body.skill, np.float64)
             dim = snap.dim if snap is not None else state.skill_dim
             if dim is not None and len(target) != dim:
-                invalid(("body", "skill"), f"skill has {len(target)} coordinates, the skills "
-                                           f"have {dim}", body.skill)
+                invalid(
+                    ("body", "skill"),
+                    f"skill has {len(target)} coordinates, the skills have {dim}",
+                    body.skill,
+                )
         damage = body.damage or ""
         if damage not in state.damages:
-            invalid(("body", "damage"), f"unknown damage {damage!r}; one of: "
-                                        f"{', '.join(d for d in state.damages if d)}", damage)
+            invalid(
+                ("body", "damage"),
+                f"unknown damage {damage!r}; one of: {', '.join(d for d in state.damages if d)}",
+                damage,
+            )
         if state.backend is None:
             unavailable("no bus: evaluations need the evaluator service")
         if not live.alive_ids("evaluator"):
             unavailable("no evaluator alive (start python -m services.evaluator)")
-        req = pb.EvaluateRequest(header=state.backend.header(), steps=body.steps,
-                                 damage=damage, skill=codec.to_array(target.astype(np.float32)))
+        req = pb.EvaluateRequest(
+            header=state.backend.header(),
+            steps=body.steps,
+            damage=damage,
+            skill=codec.to_array(target.astype(np.float32)),
+        )
         if body.seed is not None:
             req.has_seed, req.seed = True, body.seed
         timeout = state.eval_timeout_s + state.eval_timeout_per_step_s * body.steps
@@ -332,11 +421,19 @@ def create_app(state: ApiState) -> FastAPI:
             unavailable("the evaluator replied with non-finite numbers")
         steps = max(int(reply.steps), 1)
         return m.EvaluateReply(
-            skill_id=skill_id, target=target.tolist(), achieved=achieved.tolist(),
-            distance=reply.distance, delta=reply.delta,
-            within_delta=bool(reply.distance <= reply.delta), ret=reply.ret,
-            violations=int(reply.violations), violation_rate=reply.violations / steps,
-            steps=int(reply.steps), damage=damage or "none",
-            policy_version=int(reply.policy_version), elapsed_s=time.perf_counter() - t0)
+            skill_id=skill_id,
+            target=target.tolist(),
+            achieved=achieved.tolist(),
+            distance=reply.distance,
+            delta=reply.delta,
+            within_delta=bool(reply.distance <= reply.delta),
+            ret=reply.ret,
+            violations=int(reply.violations),
+            violation_rate=reply.violations / steps,
+            steps=int(reply.steps),
+            damage=damage or "none",
+            policy_version=int(reply.policy_version),
+            elapsed_s=time.perf_counter() - t0,
+        )
 
     return app

@@ -24,17 +24,32 @@ class BusBackend:
         req = pb.SkillRequest(header=self.rt.header(), n=n)
         if seed is not None:
             req.has_seed, req.seed = True, seed
-        return query_one(self.rt.session, self.rt.topics.sample, pb.SkillReply,
-                         codec.encode(req), timeout_s=timeout_s)
+        return query_one(
+            self.rt.session,
+            self.rt.topics.sample,
+            pb.SkillReply,
+            codec.encode(req),
+            timeout_s=timeout_s,
+        )
 
     def evaluate(self, req: pb.EvaluateRequest, timeout_s: float) -> pb.EvaluateReply | None:
-        return query_one(self.rt.session, self.rt.topics.evaluate, pb.EvaluateReply,
-                         codec.encode(req), timeout_s=timeout_s)
+        return query_one(
+            self.rt.session,
+            self.rt.topics.evaluate,
+            pb.EvaluateReply,
+            codec.encode(req),
+            timeout_s=timeout_s,
+        )
 
     def bus_status(self) -> dict[str, Any]:
         try:
             routers = [str(z) for z in self.rt.session.info.routers_zid()]
         except Exception as e:  # a closed session
             return {"connected": False, "router": self.router, "detail": str(e)}
-        return {"connected": bool(routers), "router": self.router, "routers": routers,
-                "dropped_messages": self.rt.drops.total, "run_id": self.rt.run.run_id}
+        return {
+            "connected": bool(routers),
+            "router": self.router,
+            "routers": routers,
+            "dropped_messages": self.rt.drops.total,
+            "run_id": self.rt.run.run_id,
+        }

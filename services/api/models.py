@@ -26,7 +26,8 @@ class Skill(BaseModel):
     z: list[float] = Field(description="Coordinates in skill space (D,)")
     age: int = Field(description="Commit index at which the skill entered the repertoire")
     nn_distance: float | None = Field(
-        description="Mahalanobis distance to its nearest neighbour (null for a lone skill)")
+        description="Mahalanobis distance to its nearest neighbour (null for a lone skill)"
+    )
 
 
 class SkillPage(BaseModel):
@@ -50,7 +51,8 @@ class SampleReply(BaseModel):
     skills: list[list[float]] = Field(description="(n, D) skills drawn from the KDE")
     source: Literal["repertoire", "snapshot"] = Field(
         description="repertoire: drawn by the repertoire service; snapshot: drawn here with "
-                    "ursa.kde.kde_sample from the latest snapshot (repertoire not answering)")
+        "ursa.kde.kde_sample from the latest snapshot (repertoire not answering)"
+    )
     delta: float | None
     snapshot_version: int
 

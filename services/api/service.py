@@ -71,25 +71,36 @@ class ApiService:
         drops = self.rt.drops
         self.subs = [
             self.rt.session.declare_subscriber(
-                t.all_stats, safe_handler(pb.Stats, self.live.on_stats, drops, args.run.run_id)),
+                t.all_stats, safe_handler(pb.Stats, self.live.on_stats, drops, args.run.run_id)
+            ),
             self.rt.session.declare_subscriber(
-                t.snapshot, safe_handler(pb.RepertoireSnapshot, self.live.on_snapshot, drops,
-                                         args.run.run_id)),
+                t.snapshot,
+                safe_handler(pb.RepertoireSnapshot, self.live.on_snapshot, drops, args.run.run_id),
+            ),
         ]
         self.state = ApiState(
-            live=self.live, backend=BusBackend(self.rt, args.bus.router), env=args.core.env,
-            skill_dim=args.core.skill_dim, max_eval_steps=args.max_eval_steps,
-            max_sample=args.max_sample, eval_timeout_s=args.eval_timeout_s,
+            live=self.live,
+            backend=BusBackend(self.rt, args.bus.router),
+            env=args.core.env,
+            skill_dim=args.core.skill_dim,
+            max_eval_steps=args.max_eval_steps,
+            max_sample=args.max_sample,
+            eval_timeout_s=args.eval_timeout_s,
             eval_timeout_per_step_s=args.eval_timeout_per_step_s,
-            damages=allowed_damages(args.core.env))
+            damages=allowed_damages(args.core.env),
+        )
         self.app = create_app(self.state)
-        self.server = uvicorn.Server(uvicorn.Config(
-            self.app, host=args.host, port=args.port, log_level="warning", access_log=False))
+        self.server = uvicorn.Server(
+            uvicorn.Config(
+                self.app, host=args.host, port=args.port, log_level="warning", access_log=False
+            )
+        )
         self._bg = threading.Thread(target=self._background, daemon=True, name="api-bus")
 
     def _query_snapshot(self) -> None:
-        msg = query_one(self.rt.session, self.rt.topics.snapshot, pb.RepertoireSnapshot,
-                        timeout_s=1.0)
+        msg = query_one(
+            self.rt.session, self.rt.topics.snapshot, pb.RepertoireSnapshot, timeout_s=1.0
+        )
         if msg is not None:
             try:
                 self.live.on_snapshot(msg)
@@ -107,15 +118,18 @@ class ApiService:
                 self._query_snapshot()
                 last_query = now
             if not announced and self.server.started:
-                print(f"API READY http://{self.args.host}:{self.args.port} (docs: /docs)",
-                      flush=True)
+                print(
+                    f"API READY http://{self.args.host}:{self.args.port} (docs: /docs)", flush=True
+                )
                 announced = True
             snap = self.live.latest_snapshot()
-            self.rt.publish_stats({
-                **{k: float(v) for k, v in self.state.counters().items()},
-                "snapshot_version": snap.version if snap is not None else -1,
-                "evaluating": float(self.state.eval_lock.locked()),
-            })
+            self.rt.publish_stats(
+                {
+                    **{k: float(v) for k, v in self.state.counters().items()},
+                    "snapshot_version": snap.version if snap is not None else -1,
+                    "evaluating": float(self.state.eval_lock.locked()),
+                }
+            )
             self.rt.stop.wait(1.0)
 
     def run(self) -> None:

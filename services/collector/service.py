@@ -82,23 +82,32 @@ class Collector:
         self.env = build_env(self.cfg, seed=args.seed)
         self.feature_key = self.cfg.feature_input_key
         if self.feature_key not in self.env.feature_dims:
-            raise SystemExit(f"env {self.cfg.env} has no feature {self.feature_key!r}; "
-                             f"it has {sorted(self.env.feature_dims)}")
+            raise SystemExit(
+                f"env {self.cfg.env} has no feature {self.feature_key!r}; "
+                f"it has {sorted(self.env.feature_dims)}"
+            )
         self.skill_dim = self.cfg.skill_dim
         self.task = self.cfg.a1.task if self.cfg.env == "a1" else "point"
         self.damage = (self.cfg.a1.damage or "") if self.cfg.env == "a1" else ""
         self.rng = np.random.default_rng(args.seed + 7919 * self.incarnation)
         torch.set_num_threads(1)
-        self.policy = Policy(self.cfg.learner, self.env.obs_dim, self.env.act_dim, self.skill_dim,
-                             feat_in_dim=int(self.env.feature_dims[self.feature_key]),
-                             seed=args.seed)
+        self.policy = Policy(
+            self.cfg.learner,
+            self.env.obs_dim,
+            self.env.act_dim,
+            self.skill_dim,
+            feat_in_dim=int(self.env.feature_dims[self.feature_key]),
+            seed=args.seed,
+        )
         self.carry = self.policy.initial_carry()
         self.config_hash = config_hash(self.cfg.learner)
 
         self.pub_chunks = publisher(self.rt.session, t.transitions(self.cid), reliable=True)
         self.pub_features = publisher(self.rt.session, t.features(self.cid), reliable=True)
-        self.backlog = {"chunks": deque[bytes](maxlen=args.backlog_chunks),
-                        "features": deque[bytes](maxlen=args.backlog_chunks)}
+        self.backlog = {
+            "chunks": deque[bytes](maxlen=args.backlog_chunks),
+            "features": deque[bytes](maxlen=args.backlog_chunks),
+        }
         self.backlog_dropped = 0
         self._recent_chunks: deque[tuple[float, bytes]] = deque()  # (put at, payload)
         self._route_lost = threading.Event()
@@ -109,13 +118,15 @@ class Collector:
         self._pending_weights: pb.PolicyWeights | None = None
         self._pending_skill: np.ndarray | None = None
         self.sub_weights = self.rt.session.declare_subscriber(
-            t.weights, safe_handler(pb.PolicyWeights, self._on_weights, self.rt.drops,
-                                    args.run.run_id))
+            t.weights,
+            safe_handler(pb.PolicyWeights, self._on_weights, self.rt.drops, args.run.run_id),
+        )
         self.gate = PaceGate(mode=self.cfg.collector.pace)
         """The rate limiter: waits while the learner is behind its replay ratio."""
         self.sub_pace = self.rt.session.declare_subscriber(
-            t.learner_stats, safe_handler(pb.Stats, self._on_learner_stats, self.rt.drops,
-                                          args.run.run_id))
+            t.learner_stats,
+            safe_handler(pb.Stats, self._on_learner_stats, self.rt.drops, args.run.run_id),
+        )
 
         self.policy_version = 0
         self.skill = np.zeros(self.skill_dim, np.float32)
@@ -156,8 +167,12 @@ class Collector:
         sc = msg.scalars
         if "pace_budget" not in sc:
             return
-        self.gate.hear(float(sc["pace_budget"]), int(sc.get("collectors_alive", 1)),
-                       bool(sc.get("pace_engaged", 0.0)), time.monotonic())
+        self.gate.hear(
+            float(sc["pace_budget"]),
+            int(sc.get("collectors_alive", 1)),
+            bool(sc.get("pace_engaged", 0.0)),
+            time.monotonic(),
+        )
 
     def _wait_for_pace(self, sps: float) -> None:
         """Hold the env while the rate limiter's gate is closed (stats keep flowing)."""
@@ -180,8 +195,12 @@ class Collector:
             return
         if msg.config_hash != self.config_hash:
             self.rt.drops.add("config_mismatch")
-            self.log.warning("refused weights %d: learner config %s, mine %s", msg.version,
-                             msg.config_hash, self.config_hash)
+            self.log.warning(
+                "refused weights %d: learner config %s, mine %s",
+                msg.version,
+                msg.config_hash,
+                self.config_hash,
+            )
             return
         try:
             self.policy.load_weights_bytes(msg.safetensors, version=int(msg.version))
@@ -197,8 +216,9 @@ class Collector:
         loop picks up (the robot keeps its previous skill meanwhile)."""
         req = pb.SkillRequest(header=self.rt.header(), n=1)
         try:
-            self.rt.session.get(self.rt.topics.sample, self._on_skill_reply,
-                                payload=codec.encode(req), timeout=2.0)
+            self.rt.session.get(
+                self.rt.topics.sample, self._on_skill_reply, payload=codec.encode(req), timeout=2.0
+            )
         except Exception as e:  # a closed session at shutdown
             self.log.debug("skill request failed: %s", e)
 
@@ -233,8 +253,9 @@ class Collector:
         until the first trained weights arrive (DayDreamer's prefill)."""
         if self.policy_version <= 0:
             return self.rng.uniform(-1.0, 1.0, size=self.env.act_dim).astype(np.float32)
-        action, self.carry = self.policy.act(self.carry, obs, self.skill, explore=explore,
-                                             rng=self.rng)
+        action, self.carry = self.policy.act(
+            self.carry, obs, self.skill, explore=explore, rng=self.rng
+        )
         if not np.all(np.isfinite(action)):
             # a diverged policy must not reach the never-reset env nor the learner's replay
             self.nonfinite_actions += 1
@@ -248,8 +269,17 @@ class Collector:
         existing = query_one(self.rt.session, t.weights, pb.PolicyWeights, timeout_s=1.0)
         if existing is not None:
             self._on_weights(existing, t.weights)
-        fields = ("obs", "action", "reward", "cost", "safe", "features", "skill", "base_pose",
-                  "stamp")
+        fields = (
+            "obs",
+            "action",
+            "reward",
+            "cost",
+            "safe",
+            "features",
+            "skill",
+            "base_pose",
+            "stamp",
+        )
         buf: dict[str, list[Any]] = {k: [] for k in fields}
         chunk_first_step = 0
         last_stats = 0.0
@@ -331,17 +361,26 @@ class Collector:
         if len(buf["base_pose"]) == len(buf["obs"]):
             arr["base_pose"] = np.asarray(buf["base_pose"], np.float32)
         msg = pb.TransitionChunk(
-            header=self.rt.header(), collector_id=self.cid, seq=self.seq, first_step=first_step,
-            policy_version=self.policy_version, incarnation=self.incarnation,
-            task=self.task, damage=self.damage,
+            header=self.rt.header(),
+            collector_id=self.cid,
+            seq=self.seq,
+            first_step=first_step,
+            policy_version=self.policy_version,
+            incarnation=self.incarnation,
+            task=self.task,
+            damage=self.damage,
             **{k: codec.to_array(v) for k, v in arr.items()},
         )
         self._send("chunks", self.pub_chunks, codec.encode(msg))
         self.seq += 1
         safe_feats = arr["features"][arr["safe"]]
         if len(safe_feats):
-            fm = pb.SafeFeatures(header=self.rt.header(), collector_id=self.cid, seq=self.feat_seq,
-                                 features=codec.to_array(safe_feats))
+            fm = pb.SafeFeatures(
+                header=self.rt.header(),
+                collector_id=self.cid,
+                seq=self.feat_seq,
+                features=codec.to_array(safe_feats),
+            )
             self._send("features", self.pub_features, codec.encode(fm))
             self.feat_seq += 1
 
@@ -397,14 +436,23 @@ class Collector:
                 "pace_waiting": float(self.gate.waiting(time.monotonic())),
                 "pace_wait_s": self.gate.waited_s,
             },
-            labels={"env": self.cfg.env, "task": self.task, "damage": self.damage or "none",
-                    "skill_source": self.skill_source},
+            labels={
+                "env": self.cfg.env,
+                "task": self.task,
+                "damage": self.damage or "none",
+                "skill_source": self.skill_source,
+            },
             arrays=arrays,
         )
 
     def close(self) -> None:
-        for h in (self._match_listener, self.sub_weights, self.sub_pace, self.pub_chunks,
-                  self.pub_features):
+        for h in (
+            self._match_listener,
+            self.sub_weights,
+            self.sub_pace,
+            self.pub_chunks,
+            self.pub_features,
+        ):
             try:
                 h.undeclare()
             except Exception:

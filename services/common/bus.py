@@ -86,8 +86,10 @@ def open_session(
         except zenoh.ZError as e:
             if time.monotonic() > deadline:
                 who = f" as {creds.user!r}" if creds else " without credentials"
-                raise ConnectionError(f"no zenoh router at {bus.router} accepted this client{who}"
-                                      f" (is authentication on?): {e}") from e
+                raise ConnectionError(
+                    f"no zenoh router at {bus.router} accepted this client{who}"
+                    f" (is authentication on?): {e}"
+                ) from e
             time.sleep(0.5)
 
 
@@ -132,8 +134,10 @@ class DropCounter:
     def labels(self) -> dict[str, str]:
         """Drops per key and per claimed publisher as JSON objects, for a service's Stats."""
         with self._lock:
-            return {"dropped_by_key": json.dumps(dict(self.by_key), sort_keys=True),
-                    "dropped_by_sender": json.dumps(dict(self.by_sender), sort_keys=True)}
+            return {
+                "dropped_by_key": json.dumps(dict(self.by_key), sort_keys=True),
+                "dropped_by_sender": json.dumps(dict(self.by_sender), sort_keys=True),
+            }
 
 
 class Rejected(codec.BadMessage):
@@ -167,8 +171,9 @@ def validator() -> Validator:
         return _validator
 
 
-def checked_decode(cls: type[M], payload: bytes | bytearray | memoryview,
-                   run_id: str | None = None, key: str = "") -> M:
+def checked_decode(
+    cls: type[M], payload: bytes | bytearray | memoryview, run_id: str | None = None, key: str = ""
+) -> M:
     """``codec.decode`` and then the semantic check of the message (received on ``key``);
     raises ``codec.BadMessage`` (``Rejected`` for a failed semantic check)."""
     msg = codec.decode(cls, payload, run_id=run_id)

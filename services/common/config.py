@@ -52,8 +52,12 @@ class RunConfig:
     """Stats are written to the run's metrics (JSONL, TensorBoard, W&B) at most this often
     (env URSA_METRICS_EVERY_S)."""
     wandb: Literal["off", "offline", "online"] = (
-        "offline" if os.environ.get("URSA_WANDB") == "offline"
-        else "online" if os.environ.get("URSA_WANDB") == "online" else "off")
+        "offline"
+        if os.environ.get("URSA_WANDB") == "offline"
+        else "online"
+        if os.environ.get("URSA_WANDB") == "online"
+        else "off"
+    )
     """Also log stats to Weights & Biases: offline (files under <run>/wandb, ``wandb sync``
     uploads them) or online; needs the wandb extra (env URSA_WANDB)."""
 

@@ -72,8 +72,13 @@ class JsonlSink:
         if self._file is None:
             self.path.parent.mkdir(parents=True, exist_ok=True)
             self._file = open(self.path, "a")  # noqa: SIM115 - open for the service's life
-        row = {"t": t, "service": self.service, "id": self.sid, "scalars": scalars,
-               "labels": labels}
+        row = {
+            "t": t,
+            "service": self.service,
+            "id": self.sid,
+            "scalars": scalars,
+            "labels": labels,
+        }
         self._file.write(json.dumps(row) + "\n")
         self._file.flush()
 
@@ -130,21 +135,28 @@ class TensorBoardSink:
 class WandbSink:
     """One W&B run of this process (``mode`` offline or online), grouped by the run id."""
 
-    def __init__(self, run_dir: Path, run_id: str, service: str, sid: str,
-                 mode: Literal["offline", "online"]) -> None:
+    def __init__(
+        self, run_dir: Path, run_id: str, service: str, sid: str, mode: Literal["offline", "online"]
+    ) -> None:
         try:
             import wandb
         except ImportError as e:
-            raise RuntimeError("W&B logging needs the wandb extra (pip install -e '.[wandb]')"
-                               ) from e
+            raise RuntimeError(
+                "W&B logging needs the wandb extra (pip install -e '.[wandb]')"
+            ) from e
         d = Path(run_dir)
         d.mkdir(parents=True, exist_ok=True)
         self._run = wandb.init(
-            project=os.environ.get("WANDB_PROJECT", "ursa"), group=run_id,
-            name=f"{service}-{sid}", job_type=service, dir=str(d), mode=mode,
+            project=os.environ.get("WANDB_PROJECT", "ursa"),
+            group=run_id,
+            name=f"{service}-{sid}",
+            job_type=service,
+            dir=str(d),
+            mode=mode,
             config={"run_id": run_id, "service": service, "id": sid},
-            settings=wandb.Settings(silent=True, console="off", disable_git=True,
-                                    x_disable_stats=True),
+            settings=wandb.Settings(
+                silent=True, console="off", disable_git=True, x_disable_stats=True
+            ),
         )
         axes = [k for k, _ in step_axes(service)]
         for k in axes:
@@ -163,10 +175,18 @@ class WandbSink:
 class MetricsLog:
     """All sinks of one service process; see the module docstring."""
 
-    def __init__(self, run_dir: Path, run_id: str, service: str, sid: str,
-                 wandb_mode: Literal["off", "offline", "online"] = "off") -> None:
-        self.sinks: list[Sink] = [JsonlSink(run_dir, service, sid),
-                                  TensorBoardSink(run_dir, service, sid)]
+    def __init__(
+        self,
+        run_dir: Path,
+        run_id: str,
+        service: str,
+        sid: str,
+        wandb_mode: Literal["off", "offline", "online"] = "off",
+    ) -> None:
+        self.sinks: list[Sink] = [
+            JsonlSink(run_dir, service, sid),
+            TensorBoardSink(run_dir, service, sid),
+        ]
         if wandb_mode != "off":
             try:  # a W&B that cannot start costs its sink, not the service
                 self.sinks.append(WandbSink(run_dir, run_id, service, sid, wandb_mode))

@@ -90,8 +90,9 @@ def generate(directory: Path) -> Path:
             if path.exists():
                 path.unlink()
             _write_private(path, f"{role}:{pw}\n")
-        _write_private(directory / USERS_FILE,
-                       "".join(f"{role}:{pw}\n" for role, pw in creds.items()))
+        _write_private(
+            directory / USERS_FILE, "".join(f"{role}:{pw}\n" for role, pw in creds.items())
+        )
     return directory
 
 
@@ -146,9 +147,11 @@ def client_credentials(
         return read_credentials(path)
     if mode == "on" or not is_loopback(bus.router):
         where = path or "a credentials file"
-        raise SystemExit(f"authentication is on (router {bus.router}, bus.auth={mode}) but "
-                         f"{where} is missing: run `ursa secrets` for this run, or pass "
-                         "--bus.credentials FILE (--bus.auth off on a trusted loopback)")
+        raise SystemExit(
+            f"authentication is on (router {bus.router}, bus.auth={mode}) but "
+            f"{where} is missing: run `ursa secrets` for this run, or pass "
+            "--bus.credentials FILE (--bus.auth off on a trusted loopback)"
+        )
     return None
 
 
@@ -177,8 +180,12 @@ def access_control(run_id: str) -> dict[str, Any]:
         "id": "read",
         "permission": "allow",
         "flows": ["ingress", "egress"],
-        "messages": ["declare_subscriber", "query", "declare_liveliness_subscriber",
-                     "liveliness_query"],
+        "messages": [
+            "declare_subscriber",
+            "query",
+            "declare_liveliness_subscriber",
+            "liveliness_query",
+        ],
         "key_exprs": [f"{root}/**"],
     }
     delivered = {
@@ -190,20 +197,28 @@ def access_control(run_id: str) -> dict[str, Any]:
     }
     rules: list[dict[str, Any]] = [everyone_reads, delivered]
     subjects: list[dict[str, Any]] = []
-    policies: list[dict[str, Any]] = [{"rules": ["read", "delivered"],
-                                       "subjects": [f"role-{r}" for r in ROLES]}]
+    policies: list[dict[str, Any]] = [
+        {"rules": ["read", "delivered"], "subjects": [f"role-{r}" for r in ROLES]}
+    ]
     for role in ROLES:
-        rules.append({
-            "id": f"own-{role}",
-            "permission": "allow",
-            "flows": ["ingress"],
-            "messages": ["put", "delete", "reply", "declare_queryable", "liveliness_token"],
-            "key_exprs": [f"{root}/{role}/**", f"{root}/alive/{role}/**"],
-        })
+        rules.append(
+            {
+                "id": f"own-{role}",
+                "permission": "allow",
+                "flows": ["ingress"],
+                "messages": ["put", "delete", "reply", "declare_queryable", "liveliness_token"],
+                "key_exprs": [f"{root}/{role}/**", f"{root}/alive/{role}/**"],
+            }
+        )
         subjects.append({"id": f"role-{role}", "usernames": [role]})
         policies.append({"rules": [f"own-{role}"], "subjects": [f"role-{role}"]})
-    return {"enabled": True, "default_permission": "deny", "rules": rules,
-            "subjects": subjects, "policies": policies}
+    return {
+        "enabled": True,
+        "default_permission": "deny",
+        "rules": rules,
+        "subjects": subjects,
+        "policies": policies,
+    }
 
 
 def main(argv: list[str] | None = None) -> int:

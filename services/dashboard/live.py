@@ -83,12 +83,21 @@ class SnapshotView:
         for a in arrays:
             a.flags.writeable = False
         return cls(
-            version=int(msg.version), stamp=float(msg.header.stamp),
+            version=int(msg.version),
+            stamp=float(msg.header.stamp),
             received=time.time() if received is None else received,
-            skills=arrays[0], ids=ids, ages=ages, nn_dist=nn, cov=cov,
-            delta=float(msg.delta), entropy_bound=float(msg.entropy_bound),
-            encoder_version=int(msg.encoder_version), commits=int(msg.commits),
-            capacity=int(msg.capacity), n_z=int(msg.n_z), sender=msg.header.sender,
+            skills=arrays[0],
+            ids=ids,
+            ages=ages,
+            nn_dist=nn,
+            cov=cov,
+            delta=float(msg.delta),
+            entropy_bound=float(msg.entropy_bound),
+            encoder_version=int(msg.encoder_version),
+            commits=int(msg.commits),
+            capacity=int(msg.capacity),
+            n_z=int(msg.n_z),
+            sender=msg.header.sender,
         )
 
     @property
@@ -172,9 +181,13 @@ class StatsEntry:
             except codec.BadMessage:
                 continue
         return cls(
-            service=msg.service, sid=msg.id, stamp=float(msg.header.stamp),
+            service=msg.service,
+            sid=msg.id,
+            stamp=float(msg.header.stamp),
             received=time.time() if received is None else received,
-            scalars=dict(msg.scalars), labels=dict(msg.labels), arrays=arrays,
+            scalars=dict(msg.scalars),
+            labels=dict(msg.labels),
+            arrays=arrays,
         )
 
     def scalar(self, key: str) -> float | None:
@@ -305,5 +318,7 @@ class LiveState:
         ids = set(alive)
         if include_dead:
             ids |= {sid for (svc, sid) in stats if svc == "collector"}
-        return [CollectorInfo(cid, cid in alive, alive.get(cid), stats.get(("collector", cid)))
-                for cid in sorted(ids)]
+        return [
+            CollectorInfo(cid, cid in alive, alive.get(cid), stats.get(("collector", cid)))
+            for cid in sorted(ids)
+        ]

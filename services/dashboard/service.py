@@ -69,8 +69,13 @@ class DashboardArgs:
 class DashboardView:
     """The page: every panel, drawn from a :class:`LiveState`. Needs no bus (tests feed it)."""
 
-    def __init__(self, server: viser.ViserServer, state: LiveState, args: DashboardArgs,
-                 connected: Any = lambda: True) -> None:
+    def __init__(
+        self,
+        server: viser.ViserServer,
+        state: LiveState,
+        args: DashboardArgs,
+        connected: Any = lambda: True,
+    ) -> None:
         self.server = server
         self.state = state
         self.args = args
@@ -85,8 +90,9 @@ class DashboardView:
         gui = server.gui
         gui.configure_theme(control_width="large", dark_mode=False, show_share_button=False)
         gui.add_markdown(f"## URSA · run `{state.run_id}`")
-        self.summary = gui.add_markdown("**repertoire:** *no data yet*  \n"
-                                        "**collectors alive:** *none yet*")
+        self.summary = gui.add_markdown(
+            "**repertoire:** *no data yet*  \n**collectors alive:** *none yet*"
+        )
         tabs = gui.add_tab_group()
         with tabs.add_tab("Run"):
             self.collectors_md = gui.add_markdown("*no collector alive yet*")
@@ -127,15 +133,21 @@ class DashboardView:
         snap = self.state.latest_snapshot()
         collectors = self.state.collectors()
         self.repertoire.update(snap, collectors)
-        alive = {svc: self.state.alive_ids(svc) for svc in
-                 ("learner", "repertoire", "evaluator", "dashboard", "api")}
-        summary = summary_markdown(snap, collectors, self.repertoire.shown, self.viewers,
-                                   bool(self.connected()))
+        alive = {
+            svc: self.state.alive_ids(svc)
+            for svc in ("learner", "repertoire", "evaluator", "dashboard", "api")
+        }
+        summary = summary_markdown(
+            snap, collectors, self.repertoire.shown, self.viewers, bool(self.connected())
+        )
         table = collectors_markdown(collectors)
         services = services_markdown(self.state.all_stats(), alive)
         with self.server.atomic():
-            for handle, content in ((self.summary, summary), (self.collectors_md, table),
-                                    (self.services_md, services)):
+            for handle, content in (
+                (self.summary, summary),
+                (self.collectors_md, table),
+                (self.services_md, services),
+            ):
                 if handle.content != content:
                     handle.content = content
         self.frame_ms = 1000.0 * (time.perf_counter() - t0)
@@ -157,21 +169,24 @@ class Dashboard:
         save_resolved(args, args.run, "dashboard")
         t = self.rt.topics
         self.presence = Presence(self.rt.session, t.alive())
-        self.state = LiveState(args.run.run_id, alive=self.presence.alive,
-                               history_capacity=args.history_points)
+        self.state = LiveState(
+            args.run.run_id, alive=self.presence.alive, history_capacity=args.history_points
+        )
         drops = self.rt.drops
         self.subs = [
             self.rt.session.declare_subscriber(
-                t.all_stats, safe_handler(pb.Stats, self.state.on_stats, drops, args.run.run_id)),
+                t.all_stats, safe_handler(pb.Stats, self.state.on_stats, drops, args.run.run_id)
+            ),
             self.rt.session.declare_subscriber(
-                t.snapshot, safe_handler(pb.RepertoireSnapshot, self.state.on_snapshot, drops,
-                                         args.run.run_id)),
+                t.snapshot,
+                safe_handler(pb.RepertoireSnapshot, self.state.on_snapshot, drops, args.run.run_id),
+            ),
         ]
-        self.server = viser.ViserServer(host=args.host, port=args.port, label="URSA",
-                                        verbose=False)
+        self.server = viser.ViserServer(host=args.host, port=args.port, label="URSA", verbose=False)
         self.view = DashboardView(self.server, self.state, args, connected=self.connected)
-        self._robot_thread = threading.Thread(target=self._robot_loop, daemon=True,
-                                              name="dashboard-robot")
+        self._robot_thread = threading.Thread(
+            target=self._robot_loop, daemon=True, name="dashboard-robot"
+        )
 
     def connected(self) -> bool:
         try:
@@ -180,8 +195,9 @@ class Dashboard:
             return False
 
     def _query_snapshot(self) -> None:
-        msg = query_one(self.rt.session, self.rt.topics.snapshot, pb.RepertoireSnapshot,
-                        timeout_s=1.0)
+        msg = query_one(
+            self.rt.session, self.rt.topics.snapshot, pb.RepertoireSnapshot, timeout_s=1.0
+        )
         if msg is not None:
             try:
                 self.state.on_snapshot(msg)
@@ -225,15 +241,17 @@ class Dashboard:
 
     def _publish_stats(self, nplots: int) -> None:
         v = self.view
-        self.rt.publish_stats({
-            "viewers": v.viewers,
-            "viewers_seen": v.clients_seen,
-            "skills_shown": v.repertoire.shown,
-            "collectors_alive": len(self.state.alive_ids("collector")),
-            "plots": nplots,
-            "frame_ms": v.frame_ms,
-            "robot_updates": v.robot.updates if v.robot is not None else 0,
-        })
+        self.rt.publish_stats(
+            {
+                "viewers": v.viewers,
+                "viewers_seen": v.clients_seen,
+                "skills_shown": v.repertoire.shown,
+                "collectors_alive": len(self.state.alive_ids("collector")),
+                "plots": nplots,
+                "frame_ms": v.frame_ms,
+                "robot_updates": v.robot.updates if v.robot is not None else 0,
+            }
+        )
 
     def close(self) -> None:
         self.rt.stop.set()

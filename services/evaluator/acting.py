@@ -78,8 +78,9 @@ class PolicyActing:
         self.policy.latent_rng = np.random.default_rng(self.rng.integers(0, 2**63 - 1))
 
     def act(self, obs: np.ndarray, skill: np.ndarray) -> np.ndarray:
-        action, self.carry = self.policy.act(self.carry, obs, skill, explore=self.explore,
-                                             rng=self.rng)
+        action, self.carry = self.policy.act(
+            self.carry, obs, skill, explore=self.explore, rng=self.rng
+        )
         return action
 
     def features(self, inputs: np.ndarray) -> np.ndarray:

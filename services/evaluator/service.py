@@ -77,8 +77,14 @@ class Evaluator:
         self.obs_dim, self.act_dim = probe.obs_dim, probe.act_dim
         self.feat_in_dim = int(probe.feature_dims[self.feature_key])
         probe.close()
-        self.policy = Policy(self.cfg.learner, self.obs_dim, self.act_dim, self.skill_dim,
-                             feat_in_dim=self.feat_in_dim, seed=args.seed)
+        self.policy = Policy(
+            self.cfg.learner,
+            self.obs_dim,
+            self.act_dim,
+            self.skill_dim,
+            feat_in_dim=self.feat_in_dim,
+            seed=args.seed,
+        )
         self.policy_version = 0
         self.config_hash = config_hash(self.cfg.learner)
         self._lock = threading.Lock()
@@ -93,14 +99,16 @@ class Evaluator:
         drops = self.rt.drops
         self.subs = [
             self.rt.session.declare_subscriber(
-                t.weights, safe_handler(pb.PolicyWeights, self._on_weights, drops,
-                                        args.run.run_id)),
+                t.weights, safe_handler(pb.PolicyWeights, self._on_weights, drops, args.run.run_id)
+            ),
             self.rt.session.declare_subscriber(
-                t.snapshot, safe_handler(pb.RepertoireSnapshot, self._on_snapshot, drops,
-                                         args.run.run_id)),
+                t.snapshot,
+                safe_handler(pb.RepertoireSnapshot, self._on_snapshot, drops, args.run.run_id),
+            ),
         ]
         self.queryable = self.rt.session.declare_queryable(
-            t.evaluate, zenoh.handlers.FifoChannel(64))
+            t.evaluate, zenoh.handlers.FifoChannel(64)
+        )
 
     # ---- inputs ----------------------------------------------------------------------------
     def _on_weights(self, msg: pb.PolicyWeights, key: str) -> None:
@@ -118,8 +126,9 @@ class Evaluator:
     def _load_weights(self) -> None:
         """Apply the newest weights received; with none yet, ask the learner once."""
         if self.policy_version == 0 and self._pending is None:
-            msg = query_one(self.rt.session, self.rt.topics.weights, pb.PolicyWeights,
-                            timeout_s=1.0)
+            msg = query_one(
+                self.rt.session, self.rt.topics.weights, pb.PolicyWeights, timeout_s=1.0
+            )
             if msg is not None:
                 self._on_weights(msg, self.rt.topics.weights)
         with self._lock:
@@ -128,8 +137,12 @@ class Evaluator:
             return
         if msg.config_hash != self.config_hash:
             self.rt.drops.add("config_mismatch")
-            self.log.warning("refused weights %d: learner config %s, mine %s", msg.version,
-                             msg.config_hash, self.config_hash)
+            self.log.warning(
+                "refused weights %d: learner config %s, mine %s",
+                msg.version,
+                msg.config_hash,
+                self.config_hash,
+            )
             return
         try:
             self.policy.load_weights_bytes(msg.safetensors, version=int(msg.version))
@@ -142,8 +155,9 @@ class Evaluator:
 
     def _metric(self) -> SnapshotView | None:
         if self.snapshot is None:
-            msg = query_one(self.rt.session, self.rt.topics.snapshot, pb.RepertoireSnapshot,
-                            timeout_s=1.0)
+            msg = query_one(
+                self.rt.session, self.rt.topics.snapshot, pb.RepertoireSnapshot, timeout_s=1.0
+            )
             if msg is not None:
                 try:
                     self._on_snapshot(msg, self.rt.topics.snapshot)
@@ -166,8 +180,10 @@ class Evaluator:
         if not 1 <= req.steps <= self.args.max_steps:
             raise ValueError(f"steps={req.steps} outside 1..{self.args.max_steps}")
         if req.damage not in self.damages:
-            raise ValueError(f"damage {req.damage!r} not one of {', '.join(self.damages[1:])} "
-                             f"on env {self.cfg.env}")
+            raise ValueError(
+                f"damage {req.damage!r} not one of {', '.join(self.damages[1:])} "
+                f"on env {self.cfg.env}"
+            )
         return skill, "" if req.damage == "none" else req.damage
 
     def handle(self, req: pb.EvaluateRequest) -> pb.EvaluateReply:
@@ -187,8 +203,11 @@ class Evaluator:
         self._load_weights()
         seed = int(req.seed) if req.has_seed else self.args.seed + self.evaluations
         rng = np.random.default_rng(seed)
-        acting: Acting = (PolicyActing(self.policy, rng, self.args.explore)
-                          if self.policy_version > 0 else RandomActing(self.act_dim, rng))
+        acting: Acting = (
+            PolicyActing(self.policy, rng, self.args.explore)
+            if self.policy_version > 0
+            else RandomActing(self.act_dim, rng)
+        )
         self.busy = True
         env = build_env(self.cfg, seed=seed, damage=damage)
         try:
@@ -203,8 +222,10 @@ class Evaluator:
             self.busy = False
         if not (np.isfinite(res.distance) and np.isfinite(res.ret)):
             self.failures += 1
-            reply.error = (f"unavailable: policy version {acting.version} produced non-finite "
-                           "actions or features")
+            reply.error = (
+                f"unavailable: policy version {acting.version} produced non-finite "
+                "actions or features"
+            )
             return reply
         self.evaluations += 1
         reply.achieved.CopyFrom(codec.to_array(res.achieved.astype(np.float32)))
@@ -214,13 +235,24 @@ class Evaluator:
         reply.violations = res.violations
         reply.steps = res.steps
         reply.policy_version = acting.version
-        self.last = {"last_distance": res.distance, "last_return": res.ret,
-                     "last_steps_per_s": res.steps / max(res.elapsed_s, 1e-9),
-                     "last_within_delta": float(res.distance <= snap.delta)}
-        self.log.info("evaluated skill %s for %d steps (damage %r, policy %d): distance %.3f, "
-                      "δ %.3f, return %.2f, %d unsafe", np.round(skill, 3).tolist(), res.steps,
-                      damage or "none", acting.version, res.distance, snap.delta, res.ret,
-                      res.violations)
+        self.last = {
+            "last_distance": res.distance,
+            "last_return": res.ret,
+            "last_steps_per_s": res.steps / max(res.elapsed_s, 1e-9),
+            "last_within_delta": float(res.distance <= snap.delta),
+        }
+        self.log.info(
+            "evaluated skill %s for %d steps (damage %r, policy %d): distance %.3f, "
+            "δ %.3f, return %.2f, %d unsafe",
+            np.round(skill, 3).tolist(),
+            res.steps,
+            damage or "none",
+            acting.version,
+            res.distance,
+            snap.delta,
+            res.ret,
+            res.violations,
+        )
         return reply
 
     def _serve(self, query: zenoh.Query) -> None:
@@ -252,10 +284,16 @@ class Evaluator:
             now = time.monotonic()
             if now - last_stats >= 1.0 / self.args.stats_hz:
                 self.rt.publish_stats(
-                    {"evaluations": self.evaluations, "failures": self.failures,
-                     "busy": float(self.busy), "policy_version": self.policy_version,
-                     "max_steps": self.args.max_steps, **self.last},
-                    labels={"env": self.cfg.env, "feature": self.cfg.feature})
+                    {
+                        "evaluations": self.evaluations,
+                        "failures": self.failures,
+                        "busy": float(self.busy),
+                        "policy_version": self.policy_version,
+                        "max_steps": self.args.max_steps,
+                        **self.last,
+                    },
+                    labels={"env": self.cfg.env, "feature": self.cfg.feature},
+                )
                 last_stats = now
 
     def close(self) -> None:

@@ -96,8 +96,13 @@ class A1Kinematics:
         import yourdfpy
 
         self.path = urdf_path or a1_urdf_path()
-        urdf = yourdfpy.URDF.load(self.path, load_meshes=False, build_scene_graph=False,
-                                  build_collision_scene_graph=False, load_collision_meshes=False)
+        urdf = yourdfpy.URDF.load(
+            self.path,
+            load_meshes=False,
+            build_scene_graph=False,
+            build_collision_scene_graph=False,
+            load_collision_meshes=False,
+        )
         self.urdf = urdf
         joints = list(urdf.robot.joints)
         children = {j.child for j in joints}
@@ -121,8 +126,17 @@ class A1Kinematics:
                     raise ValueError(f"URDF joint {j.name} is not one of JOINT_NAMES")
                 origin = np.eye(4) if j.origin is None else np.asarray(j.origin, float)
                 axis = np.asarray(j.axis if j.axis is not None else (1.0, 0.0, 0.0), float)
-                self.joints.append(Joint(j.name, j.parent, j.child, origin, j.type,
-                                         axis / np.linalg.norm(axis), col[j.name] if moves else -1))
+                self.joints.append(
+                    Joint(
+                        j.name,
+                        j.parent,
+                        j.child,
+                        origin,
+                        j.type,
+                        axis / np.linalg.norm(axis),
+                        col[j.name] if moves else -1,
+                    )
+                )
                 known.add(j.child)
                 joints.remove(j)
         self.links: list[str] = [self.root, *(j.child for j in self.joints)]
@@ -182,8 +196,12 @@ def robot_rows(chunk: pb.TransitionChunk) -> tuple[np.ndarray, np.ndarray, np.nd
     except codec.BadMessage:
         return None
     n = len(obs)
-    if (pose.shape != (n, 7) or stamp.shape != (n,) or obs.ndim != 2
-            or obs.shape[1] < OBS_LAYOUT["joint_vel"].stop):
+    if (
+        pose.shape != (n, 7)
+        or stamp.shape != (n,)
+        or obs.ndim != 2
+        or obs.shape[1] < OBS_LAYOUT["joint_vel"].stop
+    ):
         return None
     if not (np.all(np.isfinite(pose)) and np.all(np.isfinite(stamp)) and np.all(stamp > 0)):
         return None
@@ -197,8 +215,9 @@ class RobotView:
         self.kin = kin or kinematics()
         self.meshes = meshes
 
-    def messages(self, chunk: pb.TransitionChunk,
-                 with_model: bool = False) -> Iterator[tuple[str, int, Message]]:
+    def messages(
+        self, chunk: pb.TransitionChunk, with_model: bool = False
+    ) -> Iterator[tuple[str, int, Message]]:
         """(topic, log time ns, message) of every row of ``chunk`` (none without robot state);
         ``with_model``: the model's SceneUpdate first."""
         rows = robot_rows(chunk)
@@ -212,26 +231,43 @@ class RobotView:
         root = self.kin.root_pose(pose)
         loc = self.kin.local(q)
         frames = [(WORLD, self.kin.root, root)] + [
-            (prefix + j.parent, j.child, loc[j.child]) for j in self.kin.joints]
+            (prefix + j.parent, j.child, loc[j.child]) for j in self.kin.joints
+        ]
         # plain floats, per frame (T, 3) and (T, 4): protobuf setters are the cost here
-        parts = [(parent, prefix + child, m[:, :3, 3].tolist(),
-                  Rotation.from_matrix(m[:, :3, :3]).as_quat().tolist())
-                 for parent, child, m in frames]
+        parts = [
+            (
+                parent,
+                prefix + child,
+                m[:, :3, 3].tolist(),
+                Rotation.from_matrix(m[:, :3, :3]).as_quat().tolist(),
+            )
+            for parent, child, m in frames
+        ]
         qs, qds = q.tolist(), qd.tolist()
         if with_model and self.meshes:
             yield f"/robot/{cid}/model", int(stamps[0]), self.model(prefix, int(stamps[0]))
         for i, ns in enumerate(stamps.tolist()):
             ts = Timestamp(seconds=ns // 1_000_000_000, nanos=ns % 1_000_000_000)
-            tf = FrameTransforms(transforms=[
-                FrameTransform(timestamp=ts, parent_frame_id=parent, child_frame_id=child,
-                               translation=Vector3(x=tr[i][0], y=tr[i][1], z=tr[i][2]),
-                               rotation=Quaternion(x=qu[i][0], y=qu[i][1], z=qu[i][2],
-                                                   w=qu[i][3]))
-                for parent, child, tr, qu in parts])
+            tf = FrameTransforms(
+                transforms=[
+                    FrameTransform(
+                        timestamp=ts,
+                        parent_frame_id=parent,
+                        child_frame_id=child,
+                        translation=Vector3(x=tr[i][0], y=tr[i][1], z=tr[i][2]),
+                        rotation=Quaternion(x=qu[i][0], y=qu[i][1], z=qu[i][2], w=qu[i][3]),
+                    )
+                    for parent, child, tr, qu in parts
+                ]
+            )
             yield f"/robot/{cid}/tf", ns, tf
-            js = JointStates(timestamp=ts, joints=[
-                JointState(name=n, position=qs[i][k], velocity=qds[i][k])
-                for k, n in enumerate(JOINT_NAMES)])
+            js = JointStates(
+                timestamp=ts,
+                joints=[
+                    JointState(name=n, position=qs[i][k], velocity=qds[i][k])
+                    for k, n in enumerate(JOINT_NAMES)
+                ],
+            )
             yield f"/robot/{cid}/joint_states", ns, js
 
     def model(self, prefix: str, ns: int) -> SceneUpdate:
@@ -242,12 +278,20 @@ class RobotView:
             _timestamp(e.timestamp, ns)
             for origin, glb, rgba in visuals:
                 quat = Rotation.from_matrix(origin[:3, :3]).as_quat()
-                pose = Pose(position=Vector3(x=origin[0, 3], y=origin[1, 3], z=origin[2, 3]),
-                            orientation=Quaternion(x=quat[0], y=quat[1], z=quat[2], w=quat[3]))
-                e.models.append(ModelPrimitive(
-                    pose=pose, scale=Vector3(x=1.0, y=1.0, z=1.0),
-                    color=Color(r=rgba[0], g=rgba[1], b=rgba[2], a=rgba[3]), override_color=True,
-                    media_type="model/gltf-binary", data=glb))
+                pose = Pose(
+                    position=Vector3(x=origin[0, 3], y=origin[1, 3], z=origin[2, 3]),
+                    orientation=Quaternion(x=quat[0], y=quat[1], z=quat[2], w=quat[3]),
+                )
+                e.models.append(
+                    ModelPrimitive(
+                        pose=pose,
+                        scale=Vector3(x=1.0, y=1.0, z=1.0),
+                        color=Color(r=rgba[0], g=rgba[1], b=rgba[2], a=rgba[3]),
+                        override_color=True,
+                        media_type="model/gltf-binary",
+                        data=glb,
+                    )
+                )
             upd.entities.append(e)
         return upd
 
@@ -264,8 +308,13 @@ def _link_meshes(urdf_path: str) -> tuple[tuple[str, tuple[Visual, ...]], ...]:
     import trimesh
     import yourdfpy
 
-    urdf = yourdfpy.URDF.load(urdf_path, load_meshes=False, build_scene_graph=False,
-                              build_collision_scene_graph=False, load_collision_meshes=False)
+    urdf = yourdfpy.URDF.load(
+        urdf_path,
+        load_meshes=False,
+        build_scene_graph=False,
+        build_collision_scene_graph=False,
+        load_collision_meshes=False,
+    )
     base = os.path.dirname(urdf_path)
     cache: dict[str, bytes] = {}
     grey, dark = (0.75, 0.75, 0.78, 1.0), (0.2, 0.2, 0.22, 1.0)

@@ -29,8 +29,16 @@ class IngestLedger:
 
     streams: dict[str, StreamState] = field(default_factory=dict)
 
-    def admit(self, cid: str, incarnation: int, seq: int, first_step: int, n: int,
-              policy_version: int, now: float | None = None) -> tuple[bool, bool]:
+    def admit(
+        self,
+        cid: str,
+        incarnation: int,
+        seq: int,
+        first_step: int,
+        n: int,
+        policy_version: int,
+        now: float | None = None,
+    ) -> tuple[bool, bool]:
         """Record a chunk; returns ``(accept, starts_segment)``.
 
         A chunk of an older incarnation, or with a sequence number already seen, is a duplicate

@@ -59,11 +59,19 @@ class ProtobufMcap:
             name = msg.DESCRIPTOR.full_name
             if name not in self._schemas:
                 self._schemas[name] = register_schema(self._w, type(msg))
-            ch = self._w.register_channel(topic=topic, message_encoding=MessageEncoding.Protobuf,
-                                          schema_id=self._schemas[name])
+            ch = self._w.register_channel(
+                topic=topic,
+                message_encoding=MessageEncoding.Protobuf,
+                schema_id=self._schemas[name],
+            )
             self._channels[topic] = ch
-        self._w.add_message(channel_id=ch, log_time=log_time, data=msg.SerializeToString(),
-                            publish_time=log_time, sequence=sequence)
+        self._w.add_message(
+            channel_id=ch,
+            log_time=log_time,
+            data=msg.SerializeToString(),
+            publish_time=log_time,
+            sequence=sequence,
+        )
 
     def flush(self) -> None:
         self._w.flush()
@@ -78,8 +86,13 @@ class ReplayWriter:
     ``robot_view``: also write the robot's state in Foxglove's schemas (see the module docstring).
     """
 
-    def __init__(self, directory: Path, segment_chunks: int = 2000, fsync: bool = False,
-                 robot_view: bool = True) -> None:
+    def __init__(
+        self,
+        directory: Path,
+        segment_chunks: int = 2000,
+        fsync: bool = False,
+        robot_view: bool = True,
+    ) -> None:
         self.dir = Path(directory)
         self.dir.mkdir(parents=True, exist_ok=True)
         self.segment_chunks = segment_chunks
@@ -107,8 +120,9 @@ class ReplayWriter:
             self._open()
         assert self._writer is not None and self._file is not None
         stamp = int(chunk.header.stamp * 1e9)
-        self._writer.write(topic_for(chunk.collector_id), chunk, stamp,
-                           sequence=int(chunk.seq) & 0xFFFFFFFF)
+        self._writer.write(
+            topic_for(chunk.collector_id), chunk, stamp, sequence=int(chunk.seq) & 0xFFFFFFFF
+        )
         if self._robot is not None:
             cid = chunk.collector_id
             try:
@@ -147,8 +161,11 @@ def read_segment(path: Path) -> Iterator[pb.TransitionChunk]:
                     msg.ParseFromString(record.data)
                     yield msg
         except Exception as e:  # a segment cut by a crash ends in a partial record
-            log.info("segment %s ends early (%s): read up to its last complete record",
-                     path.name, type(e).__name__)
+            log.info(
+                "segment %s ends early (%s): read up to its last complete record",
+                path.name,
+                type(e).__name__,
+            )
 
 
 def read_all(directory: Path) -> Iterator[pb.TransitionChunk]:

@@ -129,17 +129,21 @@ class LearnerService:
         self.subs = [
             self.rt.session.declare_subscriber(
                 t.transitions(),
-                safe_handler(pb.TransitionChunk, self._on_chunk, self.rt.drops, args.run.run_id)),
+                safe_handler(pb.TransitionChunk, self._on_chunk, self.rt.drops, args.run.run_id),
+            ),
             self.rt.session.declare_subscriber(
                 t.snapshot,
-                safe_handler(pb.RepertoireSnapshot, self._on_snapshot, self.rt.drops,
-                             args.run.run_id)),
+                safe_handler(
+                    pb.RepertoireSnapshot, self._on_snapshot, self.rt.drops, args.run.run_id
+                ),
+            ),
         ]
         self.presence = Presence(self.rt.session, t.alive("collector"))
         self.queryables = [self.rt.session.declare_queryable(t.weights, self._on_weights_query)]
         if self.learned:
             self.queryables.append(
-                self.rt.session.declare_queryable(t.encoder, self._on_encoder_query))
+                self.rt.session.declare_queryable(t.encoder, self._on_encoder_query)
+            )
 
     @property
     def learned(self) -> bool:
@@ -159,14 +163,19 @@ class LearnerService:
             self._admit(chunk, write=False)
             n += 1
         if n:
-            self.log.info("restored %d chunks (%d transitions) from %s", n, len(self.replay),
-                          self.replay_dir)
+            self.log.info(
+                "restored %d chunks (%d transitions) from %s", n, len(self.replay), self.replay_dir
+            )
 
     def checkpoint(self) -> None:
         self.ckpt_dir.mkdir(parents=True, exist_ok=True)
         self.learner.save_checkpoint(self.ckpt_dir / "learner.pt")
-        state = {"samples": self.samples, "weights_version": self.weights_version,
-                 "updates": self.learner.updates, "stamp": time.time()}
+        state = {
+            "samples": self.samples,
+            "weights_version": self.weights_version,
+            "updates": self.learner.updates,
+            "stamp": time.time(),
+        }
         tmp = self.state_path.with_suffix(".tmp")
         tmp.write_text(json.dumps(state))
         os.replace(tmp, self.state_path)
@@ -199,8 +208,14 @@ class LearnerService:
     def _admit(self, chunk: pb.TransitionChunk, write: bool = True) -> bool:
         arrays = {name: codec.from_array(getattr(chunk, name)) for name in CHUNK_FIELDS}
         n = int(arrays["obs"].shape[0])
-        ok, _ = self.ledger.admit(chunk.collector_id, int(chunk.incarnation), int(chunk.seq),
-                                  int(chunk.first_step), n, int(chunk.policy_version))
+        ok, _ = self.ledger.admit(
+            chunk.collector_id,
+            int(chunk.incarnation),
+            int(chunk.seq),
+            int(chunk.first_step),
+            n,
+            int(chunk.policy_version),
+        )
         if not ok:
             return False
         try:
@@ -213,6 +228,18 @@ class LearnerService:
             self.writer.write(chunk)
             self.lags.append(max(0, self.weights_version - int(chunk.policy_version)))
         return True
+
+    def drain(self) -> int:
+        """Admit every chunk queued now, on the calling thread; returns how many."""
+        n = 0
+        while True:
+            try:
+                chunk = self.inbox.get_nowait()
+            except queue.Empty:
+                return n
+            with self._replay_lock:
+                self._admit(chunk)
+            n += 1
 
     def _ingest_loop(self) -> None:
         """Decode, store and record chunks while an update runs (torch releases the GIL in its
@@ -239,13 +266,14 @@ class LearnerService:
             # repertoire to re-encode (it receives every version we publish)
             return None
         inputs = codec.from_array(snap.inputs) if snap.HasField("inputs") else None
-        return SkillSnapshot(skills=np.asarray(skills, np.float64),
-                             cov=np.asarray(codec.from_array(snap.cov), np.float64),
-                             delta=float(snap.delta),
-                             inputs=None if inputs is None or inputs.size == 0
-                             else np.asarray(inputs, np.float64),
-                             version=int(snap.encoder_version),
-                             box=(np.asarray(self.skill_box.low), np.asarray(self.skill_box.high)))
+        return SkillSnapshot(
+            skills=np.asarray(skills, np.float64),
+            cov=np.asarray(codec.from_array(snap.cov), np.float64),
+            delta=float(snap.delta),
+            inputs=None if inputs is None or inputs.size == 0 else np.asarray(inputs, np.float64),
+            version=int(snap.encoder_version),
+            box=(np.asarray(self.skill_box.low), np.asarray(self.skill_box.high)),
+        )
 
     def can_train(self) -> bool:
         a, c = self.args, self.cfg.learner
@@ -276,21 +304,30 @@ class LearnerService:
     # ---- publishing ------------------------------------------------------------------------
     def publish_weights(self) -> None:
         self.weights_version = self.learner.updates
-        msg = pb.PolicyWeights(header=self.rt.header(), version=self.weights_version,
-                               safetensors=self.learner.policy_weights_bytes(),
-                               config_hash=self.config_hash, updates=self.learner.updates)
+        msg = pb.PolicyWeights(
+            header=self.rt.header(),
+            version=self.weights_version,
+            safetensors=self.learner.policy_weights_bytes(),
+            config_hash=self.config_hash,
+            updates=self.learner.updates,
+        )
         self._weights_bytes = codec.encode(msg)
         self.pub_weights.put(self._weights_bytes)
 
     def encoder_bytes(self) -> bytes:
         assert self.learner.vae_pub is not None
-        state = {k: v.detach().cpu().contiguous()
-                 for k, v in self.learner.vae_pub.state_dict().items()}
+        state = {
+            k: v.detach().cpu().contiguous() for k, v in self.learner.vae_pub.state_dict().items()
+        }
         return st_save(state, metadata={"version": str(self.learner.vae_version)})
 
     def publish_encoder(self) -> None:
-        msg = pb.EncoderWeights(header=self.rt.header(), version=self.learner.vae_version,
-                                safetensors=self.encoder_bytes(), config_hash=self.config_hash)
+        msg = pb.EncoderWeights(
+            header=self.rt.header(),
+            version=self.learner.vae_version,
+            safetensors=self.encoder_bytes(),
+            config_hash=self.config_hash,
+        )
         self._encoder_bytes = codec.encode(msg)
         self.pub_encoder.put(self._encoder_bytes)
         self.log.info("published encoder version %d", self.learner.vae_version)
@@ -300,12 +337,17 @@ class LearnerService:
         is engaged (training has started and can go on); see ``ursa.pace``."""
         a, c, cc = self.args, self.cfg.learner, self.cfg.collector
         prefill = len(self.replay) < a.min_replay
-        engaged = (not (a.max_updates and self.learner.updates >= a.max_updates)
-                   and (prefill or not c.uses_skills or self.skill_snapshot() is not None))
-        budget = insert_budget(self.ledger.total_steps, self.samples, c.train_ratio,
-                               cc.pace_tolerance,
-                               default_slack(c.batch_size, c.seq_len, c.train_ratio),
-                               min_inserts=a.min_replay)
+        engaged = not (a.max_updates and self.learner.updates >= a.max_updates) and (
+            prefill or not c.uses_skills or self.skill_snapshot() is not None
+        )
+        budget = insert_budget(
+            self.ledger.total_steps,
+            self.samples,
+            c.train_ratio,
+            cc.pace_tolerance,
+            default_slack(c.batch_size, c.seq_len, c.train_ratio),
+            min_inserts=a.min_replay,
+        )
         return budget, engaged
 
     def publish_stats(self) -> None:
@@ -323,8 +365,9 @@ class LearnerService:
             "train_ratio_limit": c.train_ratio,
             "pace_budget": budget if np.isfinite(budget) else 1e12,
             "pace_engaged": float(engaged and self.cfg.collector.pace == "wait"),
-            "updates_per_s": (len(self.update_times) / sum(self.update_times)
-                              if self.update_times else 0.0),
+            "updates_per_s": (
+                len(self.update_times) / sum(self.update_times) if self.update_times else 0.0
+            ),
             "policy_lag": float(np.mean(self.lags)) if self.lags else 0.0,
             "encoder_version": self.learner.vae_version,
             "inbox": self.inbox.qsize(),
@@ -344,8 +387,10 @@ class LearnerService:
             scalars[f"duplicates/{cid}"] = st.duplicates
             scalars[f"next_seq/{cid}"] = st.next_seq
         alive = sorted(Topics.last_chunk(k) for k in self.presence.alive())
-        self.rt.publish_stats(scalars, labels={"mode": c.mode, "device": c.device,
-                                               "collectors_alive": ",".join(alive)})
+        self.rt.publish_stats(
+            scalars,
+            labels={"mode": c.mode, "device": c.device, "collectors_alive": ",".join(alive)},
+        )
 
     # ---- loop ------------------------------------------------------------------------------
     def run(self) -> None:
@@ -357,8 +402,9 @@ class LearnerService:
         self.publish_weights()
         if self.learned:
             self.publish_encoder()
-        print(f"LEARNER READY mode={self.cfg.learner.mode} updates={self.learner.updates}",
-              flush=True)
+        print(
+            f"LEARNER READY mode={self.cfg.learner.mode} updates={self.learner.updates}", flush=True
+        )
         last_stats = last_weights = last_ckpt = time.monotonic()
         self._ingest.start()
         while not self.rt.stop.is_set():
@@ -387,8 +433,7 @@ class LearnerService:
         self._ingest_stop.set()
         if self._ingest.is_alive():
             self._ingest.join(timeout=10.0)
-        while not self.inbox.empty():
-            self._admit(self.inbox.get_nowait())
+        self.drain()
         self.writer.close()
         self.checkpoint()
         self.rt.close()

@@ -82,13 +82,21 @@ class RepertoireService:
 
         t = self.rt.topics
         self.pub_snapshot = publisher(self.rt.session, t.snapshot, reliable=False)
-        self.subs = [self.rt.session.declare_subscriber(
-            t.features(), safe_handler(pb.SafeFeatures, self._on_features, self.rt.drops,
-                                       args.run.run_id))]
+        self.subs = [
+            self.rt.session.declare_subscriber(
+                t.features(),
+                safe_handler(pb.SafeFeatures, self._on_features, self.rt.drops, args.run.run_id),
+            )
+        ]
         if self.learned:
-            self.subs.append(self.rt.session.declare_subscriber(
-                t.encoder, safe_handler(pb.EncoderWeights, self._on_encoder, self.rt.drops,
-                                        args.run.run_id)))
+            self.subs.append(
+                self.rt.session.declare_subscriber(
+                    t.encoder,
+                    safe_handler(
+                        pb.EncoderWeights, self._on_encoder, self.rt.drops, args.run.run_id
+                    ),
+                )
+            )
         self.queryables = [
             self.rt.session.declare_queryable(t.sample, self._on_sample),
             self.rt.session.declare_queryable(t.snapshot, self._on_snapshot_query),
@@ -102,8 +110,12 @@ class RepertoireService:
                 rep = Repertoire.load(self.path, bounds=box)
                 self.log.info("restored %d skills from %s", len(rep.skills), self.path)
                 if rep.repaired:
-                    self.log.warning("repaired %s: dropped %d skills not finite or outside %s",
-                                     self.path, rep.repaired, box)
+                    self.log.warning(
+                        "repaired %s: dropped %d skills not finite or outside %s",
+                        self.path,
+                        rep.repaired,
+                        box,
+                    )
                 return rep
             except Exception:
                 self.log.exception("cannot restore %s; starting empty", self.path)
@@ -194,7 +206,8 @@ class RepertoireService:
         with self.lock:
             rep = self.rep
             msg = pb.RepertoireSnapshot(
-                header=self.rt.header(), version=self.version,
+                header=self.rt.header(),
+                version=self.version,
                 skills=codec.to_array(rep.skills.astype(np.float32)),
                 ids=codec.to_array(np.asarray(rep.ids, np.int64)),
                 ages=codec.to_array(np.asarray(rep.ages, np.int64)),
@@ -202,8 +215,10 @@ class RepertoireService:
                 cov=codec.to_array(np.asarray(rep.cov, np.float64)),
                 delta=float(rep.delta()) if len(rep.skills) > 1 else 0.0,
                 entropy_bound=float(rep.entropy_bound()) if len(rep.skills) > 1 else 0.0,
-                encoder_version=int(rep.encoder_version), commits=int(rep.commits),
-                capacity=int(self.cfg.repertoire.size), n_z=int(self.cfg.repertoire.n_z),
+                encoder_version=int(rep.encoder_version),
+                commits=int(rep.commits),
+                capacity=int(self.cfg.repertoire.size),
+                n_z=int(self.cfg.repertoire.n_z),
             )
             if self.learned and rep.inputs is not None:
                 msg.inputs.CopyFrom(codec.to_array(np.asarray(rep.inputs, np.float32)))
@@ -260,11 +275,17 @@ class RepertoireService:
             t0, a0, r0 = self.commits_window[0]
             dt = max(now - t0, 1e-9)
             scalars = {
-                "size": len(rep.skills), "capacity": self.cfg.repertoire.size,
-                "delta": snap.delta, "entropy_bound": snap.entropy_bound,
-                "commits": rep.commits, "accepted": rep.accepted, "rejected": rep.rejected,
-                "invalid": rep.invalid, "encoder_version": rep.encoder_version,
-                "out_of_bounds": rep.rejected_out_of_bounds, "repaired": rep.repaired,
+                "size": len(rep.skills),
+                "capacity": self.cfg.repertoire.size,
+                "delta": snap.delta,
+                "entropy_bound": snap.entropy_bound,
+                "commits": rep.commits,
+                "accepted": rep.accepted,
+                "rejected": rep.rejected,
+                "invalid": rep.invalid,
+                "encoder_version": rep.encoder_version,
+                "out_of_bounds": rep.rejected_out_of_bounds,
+                "repaired": rep.repaired,
                 "accepted_per_s": (rep.accepted - a0) / dt if len(self.commits_window) > 1 else 0,
                 "rejected_per_s": (rep.rejected - r0) / dt if len(self.commits_window) > 1 else 0,
                 "pending_inputs": sum(len(p) for p in self.pending),

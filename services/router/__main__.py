@@ -42,8 +42,12 @@ def main(args: RouterArgs) -> None:
     signal.signal(signal.SIGINT, lambda *_: stop.set())
     auth = router_auth(args.bus, args.run)
     with zenoh.open(router_config(args.bus, auth)) as session:
-        log.info("router %s listening on %s, authentication %s", session.zid(), args.bus.listen,
-                 f"on ({auth.dictionary})" if auth else "off")
+        log.info(
+            "router %s listening on %s, authentication %s",
+            session.zid(),
+            args.bus.listen,
+            f"on ({auth.dictionary})" if auth else "off",
+        )
         print(f"ROUTER READY {args.bus.listen}", flush=True)
         stop.wait()
     log.info("router stopped")

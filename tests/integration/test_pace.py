@@ -5,6 +5,7 @@ robot) they never wait and the ratio falls far below it; a killed learner never 
 
 from __future__ import annotations
 
+import functools
 from pathlib import Path
 
 import pytest
@@ -24,8 +25,7 @@ def _stack(st, pace: str) -> None:  # type: ignore[no-untyped-def]
     st.start("repertoire", "services.repertoire", *flags)
     st.start("learner", "services.learner", *flags, "--stats-hz", "5")
     for i in range(2):
-        st.start(f"c{i}", "services.collector", *flags, "--collector-id", f"c{i}",
-                 "--seed", str(i))
+        st.start(f"c{i}", "services.collector", *flags, "--collector-id", f"c{i}", "--seed", str(i))
 
 
 def test_waiting_collectors_keep_the_replay_ratio_at_its_target(tmp_path: Path) -> None:
@@ -33,6 +33,7 @@ def test_waiting_collectors_keep_the_replay_ratio_at_its_target(tmp_path: Path) 
         _stack(st, "wait")
         watcher = StatsWatcher(st.session(), st.topics)
         try:
+
             def trained(n: float) -> bool:
                 ls = watcher.get("learner", "main")
                 return ls is not None and ls.scalars.get("updates", 0) >= n
@@ -41,13 +42,15 @@ def test_waiting_collectors_keep_the_replay_ratio_at_its_target(tmp_path: Path) 
             wait_for(lambda: trained(400), 300, "400 updates", every=0.5)
             ratios = []
             for n in (450, 500):
-                wait_for(lambda n=n: trained(n), 120, f"{n} updates", every=0.5)
+                wait_for(functools.partial(trained, n), 120, f"{n} updates", every=0.5)
                 ls = watcher.get("learner", "main")
                 assert ls is not None
                 ratios.append(ls.scalars["replay_ratio"])
             waited = [watcher.get("collector", f"c{i}") for i in range(2)]
-            print(f"\nreplay ratio {ratios} (target {TARGET}); collectors waited "
-                  f"{[w.scalars['pace_wait_s'] if w else None for w in waited]} s")
+            print(
+                f"\nreplay ratio {ratios} (target {TARGET}); collectors waited "
+                f"{[w.scalars['pace_wait_s'] if w else None for w in waited]} s"
+            )
             for r in ratios:
                 assert abs(r - TARGET) <= TOLERANCE * TARGET + 1e-9, (ratios, st.logs())
             for w in waited:
@@ -59,8 +62,12 @@ def test_waiting_collectors_keep_the_replay_ratio_at_its_target(tmp_path: Path) 
 
             def resumed() -> bool:
                 now = [watcher.get("collector", f"c{i}") for i in range(2)]
-                return all(c is not None and c.scalars["steps"] > steps[i] + 500
-                           and c.scalars["pace_waiting"] == 0.0 for i, c in enumerate(now))
+                return all(
+                    c is not None
+                    and c.scalars["steps"] > steps[i] + 500
+                    and c.scalars["pace_waiting"] == 0.0
+                    for i, c in enumerate(now)
+                )
 
             wait_for(resumed, 60, "collectors stepping again without a learner")
         finally:
@@ -72,6 +79,7 @@ def test_free_collectors_never_wait(tmp_path: Path) -> None:
         _stack(st, "free")
         watcher = StatsWatcher(st.session(), st.topics)
         try:
+
             def trained() -> bool:
                 ls = watcher.get("learner", "main")
                 return ls is not None and ls.scalars.get("updates", 0) >= 100

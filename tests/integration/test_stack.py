@@ -43,10 +43,31 @@ def test_launcher_stack_moves_data_and_stops_clean(tmp_path: Path) -> None:
     env = {**os.environ, "PYTHONUNBUFFERED": "1"}
     log = open(tmp_path / "launcher.log", "wb")  # noqa: SIM115
     launcher = subprocess.Popen(
-        [sys.executable, "-m", "services.cli", "up", "--env", "point", "--preset", "tiny",
-         "--collectors", "2", "--run-id", run_id, "--runs-dir", str(tmp_path / "runs"),
-         "--router-port", str(port), "--no-dashboard", "--no-api", "--no-evaluator"],
-        cwd=ROOT, env=env, stdout=log, stderr=subprocess.STDOUT,
+        [
+            sys.executable,
+            "-m",
+            "services.cli",
+            "up",
+            "--env",
+            "point",
+            "--preset",
+            "tiny",
+            "--collectors",
+            "2",
+            "--run-id",
+            run_id,
+            "--runs-dir",
+            str(tmp_path / "runs"),
+            "--router-port",
+            str(port),
+            "--no-dashboard",
+            "--no-api",
+            "--no-evaluator",
+        ],
+        cwd=ROOT,
+        env=env,
+        stdout=log,
+        stderr=subprocess.STDOUT,
     )
     try:
         wait_port(port, 30)
@@ -59,8 +80,11 @@ def test_launcher_stack_moves_data_and_stops_clean(tmp_path: Path) -> None:
             if ls is None or rs is None:
                 return False
             sc = ls.scalars
-            return (sc.get("chunks/c0", 0) >= 20 and sc.get("chunks/c1", 0) >= 20
-                    and rs.scalars["commits"] > 0)
+            return (
+                sc.get("chunks/c0", 0) >= 20
+                and sc.get("chunks/c1", 0) >= 20
+                and rs.scalars["commits"] > 0
+            )
 
         wait_for(flowing, 90, "chunks from both collectors and features in the repertoire")
         time.sleep(1.0)
@@ -91,4 +115,8 @@ def test_launcher_stack_moves_data_and_stops_clean(tmp_path: Path) -> None:
     run_dir = tmp_path / "runs" / run_id
     assert list((run_dir / "replay").glob("segment-*.mcap"))
     assert {p.name for p in (run_dir / "config").iterdir()} >= {
-        "learner.yaml", "repertoire.yaml", "collector-c0.yaml", "collector-c1.yaml"}
+        "learner.yaml",
+        "repertoire.yaml",
+        "collector-c0.yaml",
+        "collector-c1.yaml",
+    }

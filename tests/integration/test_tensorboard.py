@@ -43,17 +43,44 @@ def test_stack_writes_tensorboard_scalars_at_increasing_steps(tmp_path: Path) ->
     env = {**os.environ, "PYTHONUNBUFFERED": "1", "URSA_METRICS_EVERY_S": "1"}
     log = open(tmp_path / "launcher.log", "wb")  # noqa: SIM115
     launcher = subprocess.Popen(
-        [sys.executable, "-m", "services.cli", "up", "--env", "point", "--preset", "tiny",
-         "--collectors", "2", "--run-id", run_id, "--runs-dir", str(runs),
-         "--router-port", str(free_port()), "--no-dashboard", "--no-api", "--no-evaluator"],
-        cwd=ROOT, env=env, stdout=log, stderr=subprocess.STDOUT, start_new_session=True,
+        [
+            sys.executable,
+            "-m",
+            "services.cli",
+            "up",
+            "--env",
+            "point",
+            "--preset",
+            "tiny",
+            "--collectors",
+            "2",
+            "--run-id",
+            run_id,
+            "--runs-dir",
+            str(runs),
+            "--router-port",
+            str(free_port()),
+            "--no-dashboard",
+            "--no-api",
+            "--no-evaluator",
+        ],
+        cwd=ROOT,
+        env=env,
+        stdout=log,
+        stderr=subprocess.STDOUT,
+        start_new_session=True,
     )
     try:
+
         def trained() -> bool:
-            return (_increasing(_steps(tb / "learner-main", "wm/loss"), 3)
-                    and _increasing(_steps(tb / "learner-main.env_steps", "wm/loss"), 3)
-                    and all(_increasing(_steps(tb / f"collector-{c}", "steps_per_s"), 3)
-                            for c in ("c0", "c1")))
+            return (
+                _increasing(_steps(tb / "learner-main", "wm/loss"), 3)
+                and _increasing(_steps(tb / "learner-main.env_steps", "wm/loss"), 3)
+                and all(
+                    _increasing(_steps(tb / f"collector-{c}", "steps_per_s"), 3)
+                    for c in ("c0", "c1")
+                )
+            )
 
         wait_for(trained, 240, "three learner and collector rows at growing steps", every=2.0)
     finally:

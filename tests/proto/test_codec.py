@@ -26,31 +26,70 @@ def _examples() -> list[pb.Message]:  # type: ignore[name-defined]
     h = codec.header("run1", "test/0")
     return [
         pb.TransitionChunk(
-            header=h, collector_id="c0", seq=3, first_step=150, policy_version=2, incarnation=1,
-            obs=codec.to_array(_arr((50, 40))), action=codec.to_array(_arr((50, 12))),
-            reward=codec.to_array(_arr((50,))), cost=codec.to_array(_arr((50,))),
-            safe=codec.to_array(np.ones(50, bool)), features=codec.to_array(_arr((50, 13))),
-            skill=codec.to_array(_arr((50, 3))), task="forward", damage="front_hip",
+            header=h,
+            collector_id="c0",
+            seq=3,
+            first_step=150,
+            policy_version=2,
+            incarnation=1,
+            obs=codec.to_array(_arr((50, 40))),
+            action=codec.to_array(_arr((50, 12))),
+            reward=codec.to_array(_arr((50,))),
+            cost=codec.to_array(_arr((50,))),
+            safe=codec.to_array(np.ones(50, bool)),
+            features=codec.to_array(_arr((50, 13))),
+            skill=codec.to_array(_arr((50, 3))),
+            task="forward",
+            damage="front_hip",
         ),
         pb.SafeFeatures(header=h, collector_id="c1", seq=9, features=codec.to_array(_arr((7, 3)))),
         pb.SkillRequest(header=h, n=4, has_seed=True, seed=42),
-        pb.SkillReply(header=h, skills=codec.to_array(_arr((4, 3))), delta=0.5,
-                      encoder_version=2, snapshot_version=11),
-        pb.RepertoireSnapshot(
-            header=h, version=5, skills=codec.to_array(_arr((10, 3))),
-            ids=codec.to_array(_arr((10,), "i8")), ages=codec.to_array(_arr((10,), "i8")),
-            nn_dist=codec.to_array(_arr((10,))), cov=codec.to_array(np.eye(3)),
-            inputs=codec.to_array(_arr((10, 13))), delta=1.5, entropy_bound=-2.0,
-            encoder_version=1, commits=100, capacity=5000, n_z=100,
+        pb.SkillReply(
+            header=h,
+            skills=codec.to_array(_arr((4, 3))),
+            delta=0.5,
+            encoder_version=2,
+            snapshot_version=11,
         ),
-        pb.PolicyWeights(header=h, version=7, safetensors=b"\x00\x01", config_hash="abc",
-                         updates=1000),
+        pb.RepertoireSnapshot(
+            header=h,
+            version=5,
+            skills=codec.to_array(_arr((10, 3))),
+            ids=codec.to_array(_arr((10,), "i8")),
+            ages=codec.to_array(_arr((10,), "i8")),
+            nn_dist=codec.to_array(_arr((10,))),
+            cov=codec.to_array(np.eye(3)),
+            inputs=codec.to_array(_arr((10, 13))),
+            delta=1.5,
+            entropy_bound=-2.0,
+            encoder_version=1,
+            commits=100,
+            capacity=5000,
+            n_z=100,
+        ),
+        pb.PolicyWeights(
+            header=h, version=7, safetensors=b"\x00\x01", config_hash="abc", updates=1000
+        ),
         pb.EncoderWeights(header=h, version=2, safetensors=b"\x02", config_hash="abc"),
-        pb.Stats(header=h, service="collector", id="c0", scalars={"steps": 10.0},
-                 labels={"damage": "none"}, arrays={"skill": codec.to_array(_arr((3,)))}),
+        pb.Stats(
+            header=h,
+            service="collector",
+            id="c0",
+            scalars={"steps": 10.0},
+            labels={"damage": "none"},
+            arrays={"skill": codec.to_array(_arr((3,)))},
+        ),
         pb.EvaluateRequest(header=h, skill=codec.to_array(_arr((3,))), steps=250, damage=""),
-        pb.EvaluateReply(header=h, achieved=codec.to_array(_arr((3,))), distance=0.1, delta=0.3,
-                         ret=12.0, violations=1, steps=250, policy_version=3),
+        pb.EvaluateReply(
+            header=h,
+            achieved=codec.to_array(_arr((3,))),
+            distance=0.1,
+            delta=0.3,
+            ret=12.0,
+            violations=1,
+            steps=250,
+            policy_version=3,
+        ),
     ]
 
 
@@ -133,8 +172,15 @@ def test_regenerating_the_schema_changes_nothing(tmp_path: Path) -> None:
 
     shutil.copy(ROOT / "proto" / "ursa.proto", tmp_path / "ursa.proto")
     subprocess.run(
-        [sys.executable, "-m", "grpc_tools.protoc", f"-I{tmp_path}", f"--python_out={tmp_path}",
-         f"--pyi_out={tmp_path}", str(tmp_path / "ursa.proto")],
+        [
+            sys.executable,
+            "-m",
+            "grpc_tools.protoc",
+            f"-I{tmp_path}",
+            f"--python_out={tmp_path}",
+            f"--pyi_out={tmp_path}",
+            str(tmp_path / "ursa.proto"),
+        ],
         check=True,
     )
     for name in ("ursa_pb2.py", "ursa_pb2.pyi"):
@@ -159,7 +205,9 @@ def no_run_key() -> Iterator[None]:
 @pytest.mark.parametrize("key", [None, KEY], ids=["checksum", "mac"])
 @pytest.mark.parametrize("msg", _examples(), ids=lambda m: type(m).__name__)
 def test_every_message_round_trips_framed(
-    msg: pb.Message, key: bytes | None, no_run_key: None  # type: ignore[name-defined]
+    msg: pb.Message,  # type: ignore[name-defined]
+    key: bytes | None,
+    no_run_key: None,
 ) -> None:
     data = codec.encode(msg, key=key)
     f = codec.read_frame(data)
@@ -206,8 +254,10 @@ def test_with_a_run_key_checksums_and_foreign_macs_are_refused(no_run_key: None)
     assert codec.read_frame(good).algorithm == codec.MAC
     assert codec.decode(pb.SkillRequest, good) == msg
     with pytest.raises(codec.IntegrityError, match="no MAC"):
-        codec.decode(pb.SkillRequest, codec.frame(msg.SerializeToString(),
-                                                  msg.DESCRIPTOR.full_name, "test/0"))
+        codec.decode(
+            pb.SkillRequest,
+            codec.frame(msg.SerializeToString(), msg.DESCRIPTOR.full_name, "test/0"),
+        )
     with pytest.raises(codec.IntegrityError, match="fails its MAC"):
         codec.decode(pb.SkillRequest, codec.encode(msg, key=b"k" * 32))
     codec.set_run_key(None)

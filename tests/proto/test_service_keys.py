@@ -31,8 +31,10 @@ SECTIONS = ("Subscribes:", "Queries:", "Queryables:", "Queryable:", "Publishes:"
 KEY = re.compile(r"ursa/\{run\}/[^\s(),;]+")
 #: Topics members that build keys (the others parse keys or hold the run's prefix)
 BUILDERS = sorted(
-    name for name, v in vars(Topics).items()
-    if not name.startswith("_") and name not in ("parse_alive", "last_chunk")
+    name
+    for name, v in vars(Topics).items()
+    if not name.startswith("_")
+    and name not in ("parse_alive", "last_chunk")
     and (isinstance(v, property) or inspect.isfunction(v))
 )
 
@@ -81,7 +83,8 @@ def _built() -> set[str]:
 def _is_topics(node: ast.expr) -> bool:
     """``t``, ``topics`` or ``<anything>.topics``: a Topics instance by the services' naming."""
     return (isinstance(node, ast.Name) and node.id in ("t", "topics")) or (
-        isinstance(node, ast.Attribute) and node.attr == "topics")
+        isinstance(node, ast.Attribute) and node.attr == "topics"
+    )
 
 
 def _code_keys(package: Path) -> dict[str, list[str]]:
@@ -92,16 +95,19 @@ def _code_keys(package: Path) -> dict[str, list[str]]:
         tree = ast.parse(path.read_text(), str(path))
         calls = {id(n.func): n for n in ast.walk(tree) if isinstance(n, ast.Call)}
         for node in ast.walk(tree):
-            if not (isinstance(node, ast.Attribute) and node.attr in BUILDERS
-                    and _is_topics(node.value)):
+            if not (
+                isinstance(node, ast.Attribute) and node.attr in BUILDERS and _is_topics(node.value)
+            ):
                 continue
             if isinstance(getattr(Topics, node.attr), property):
                 key = getattr(t, node.attr)
             else:
                 call = calls.get(id(node))
                 assert call is not None, f"{path}:{node.lineno}: Topics.{node.attr} not called"
-                args = [a.value if isinstance(a, ast.Constant) and isinstance(a.value, str)
-                        else ID for a in call.args]
+                args = [
+                    a.value if isinstance(a, ast.Constant) and isinstance(a.value, str) else ID
+                    for a in call.args
+                ]
                 key = getattr(t, node.attr)(*args)
             out.setdefault(key, []).append(f"{path.relative_to(ROOT)}:{node.lineno}")
     return out
@@ -162,20 +168,31 @@ def test_no_service_spells_a_key_by_hand() -> None:
         tree = ast.parse(path.read_text(), str(path))
         docs = _docstrings(tree)
         rel = str(path.relative_to(ROOT))
-        allowed = {id(n) for f in ast.walk(tree) if isinstance(f, ast.FunctionDef)
-                   and (rel, f.name) in BY_HAND_ALLOWED for n in ast.walk(f)}
+        allowed = {
+            id(n)
+            for f in ast.walk(tree)
+            if isinstance(f, ast.FunctionDef) and (rel, f.name) in BY_HAND_ALLOWED
+            for n in ast.walk(f)
+        }
         for node in ast.walk(tree):
             if id(node) in allowed:
                 continue
             text = None
-            if isinstance(node, ast.Constant) and isinstance(node.value, str) \
-                    and id(node) not in docs:
+            if (
+                isinstance(node, ast.Constant)
+                and isinstance(node.value, str)
+                and id(node) not in docs
+            ):
                 text = node.value
-            elif isinstance(node, ast.JoinedStr) and node.values \
-                    and isinstance(node.values[0], ast.Constant):
+            elif (
+                isinstance(node, ast.JoinedStr)
+                and node.values
+                and isinstance(node.values[0], ast.Constant)
+            ):
                 text = str(node.values[0].value)
-            if text is not None and (text.startswith("ursa/") or "/alive/" in text
-                                     or "/stats/" in text):
+            if text is not None and (
+                text.startswith("ursa/") or "/alive/" in text or "/stats/" in text
+            ):
                 bad.append(f"{rel}:{getattr(node, 'lineno', '?')}: {text!r}")
     assert not bad, bad
 
@@ -197,6 +214,10 @@ def test_the_builders_cover_the_documented_table() -> None:
             keys = {getattr(t, name)}
         else:
             params = list(inspect.signature(member).parameters)[1:]
-            keys = {getattr(t, name)(*args) for args in itertools.product(
-                *[[*SERVICES, ID] if p == "service" else [ID] for p in params])}
+            keys = {
+                getattr(t, name)(*args)
+                for args in itertools.product(
+                    *[[*SERVICES, ID] if p == "service" else [ID] for p in params]
+                )
+            }
         assert name == "all_stats" or keys & table, (name, keys)

@@ -18,11 +18,20 @@ from playwright.sync_api import Browser, sync_playwright
 from proto import codec
 from proto import ursa_pb2 as pb
 
-CHROMIUM_FLAGS = ("--enable-unsafe-swiftshader", "--no-sandbox",
-                  "--use-angle=swiftshader", "--disable-gpu-sandbox", "--disable-dev-shm-usage",
-                  "--no-first-run", "--no-default-browser-check", "--mute-audio",
-                  "--window-size=1600,1000", "--disable-background-timer-throttling",
-                  "--disable-renderer-backgrounding", "--disable-backgrounding-occluded-windows")
+CHROMIUM_FLAGS = (
+    "--enable-unsafe-swiftshader",
+    "--no-sandbox",
+    "--use-angle=swiftshader",
+    "--disable-gpu-sandbox",
+    "--disable-dev-shm-usage",
+    "--no-first-run",
+    "--no-default-browser-check",
+    "--mute-audio",
+    "--window-size=1600,1000",
+    "--disable-background-timer-throttling",
+    "--disable-renderer-backgrounding",
+    "--disable-backgrounding-occluded-windows",
+)
 
 
 def find_chromium() -> str | None:
@@ -30,8 +39,9 @@ def find_chromium() -> str | None:
     return shutil.which(os.environ.get("URSA_CHROMIUM") or "chromium")
 
 
-def snapshot_msg(n: int = 50, d: int = 2, version: int = 1, run_id: str = "test",
-                 seed: int = 0, id0: int = 0) -> pb.RepertoireSnapshot:
+def snapshot_msg(
+    n: int = 50, d: int = 2, version: int = 1, run_id: str = "test", seed: int = 0, id0: int = 0
+) -> pb.RepertoireSnapshot:
     """A repertoire snapshot of n random skills (ids id0, id0+1, ...) with Σ = 0.05·I."""
     rng = np.random.default_rng(seed)
     z = rng.uniform(-1.0, 1.0, size=(n, d)).astype(np.float32)
@@ -39,16 +49,31 @@ def snapshot_msg(n: int = 50, d: int = 2, version: int = 1, run_id: str = "test"
     if n == 1:
         nn[:] = np.inf
     return pb.RepertoireSnapshot(
-        header=codec.header(run_id, "repertoire/main"), version=version,
-        skills=codec.to_array(z), ids=codec.to_array(np.arange(id0, id0 + n, dtype=np.int64)),
-        ages=codec.to_array(np.arange(n, dtype=np.int64)), nn_dist=codec.to_array(nn),
-        cov=codec.to_array(np.eye(d) * 0.05), delta=0.3, entropy_bound=-1.5,
-        encoder_version=0, commits=n, capacity=300, n_z=100)
+        header=codec.header(run_id, "repertoire/main"),
+        version=version,
+        skills=codec.to_array(z),
+        ids=codec.to_array(np.arange(id0, id0 + n, dtype=np.int64)),
+        ages=codec.to_array(np.arange(n, dtype=np.int64)),
+        nn_dist=codec.to_array(nn),
+        cov=codec.to_array(np.eye(d) * 0.05),
+        delta=0.3,
+        entropy_bound=-1.5,
+        encoder_version=0,
+        commits=n,
+        capacity=300,
+        n_z=100,
+    )
 
 
-def stats_msg(service: str, sid: str, scalars: dict[str, float], run_id: str = "test",
-              labels: dict[str, str] | None = None,
-              arrays: dict[str, np.ndarray] | None = None, stamp: float | None = None) -> pb.Stats:
+def stats_msg(
+    service: str,
+    sid: str,
+    scalars: dict[str, float],
+    run_id: str = "test",
+    labels: dict[str, str] | None = None,
+    arrays: dict[str, np.ndarray] | None = None,
+    stamp: float | None = None,
+) -> pb.Stats:
     msg = pb.Stats(header=codec.header(run_id, f"{service}/{sid}"), service=service, id=sid)
     if stamp is not None:
         msg.header.stamp = stamp
@@ -65,8 +90,9 @@ def stats_msg(service: str, sid: str, scalars: dict[str, float], run_id: str = "
 def headless_chromium(executable: str) -> Iterator[Browser]:
     """A headless chromium driven by Playwright (software WebGL for viser's 3-D canvas)."""
     with sync_playwright() as pw:
-        browser = pw.chromium.launch(executable_path=executable, headless=True,
-                                     args=list(CHROMIUM_FLAGS))
+        browser = pw.chromium.launch(
+            executable_path=executable, headless=True, args=list(CHROMIUM_FLAGS)
+        )
         try:
             yield browser
         finally:

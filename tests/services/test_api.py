@@ -53,8 +53,9 @@ class FakeBackend:
         self.samples.append((n, seed))
         if self.sample_reply == "none":
             return None
-        reply = pb.SkillReply(header=codec.header(RUN, "repertoire/main"), delta=0.3,
-                              snapshot_version=7)
+        reply = pb.SkillReply(
+            header=codec.header(RUN, "repertoire/main"), delta=0.3, snapshot_version=7
+        )
         if self.sample_reply == "error":
             reply.error = "repertoire is empty"
         else:
@@ -105,20 +106,38 @@ def _alive(*names: str) -> dict[str, float]:
 def fed() -> Iterator[tuple[TestClient, ApiState, FakeBackend, dict[str, float]]]:
     """An app with a 50-skill snapshot (ids 10..59, D=2), two collectors, every peer alive."""
     backend = FakeBackend()
-    alive = _alive("repertoire/main", "learner/main", "evaluator/eval", "collector/c0",
-                   "collector/c1")
+    alive = _alive(
+        "repertoire/main", "learner/main", "evaluator/eval", "collector/c0", "collector/c1"
+    )
     state = _state(alive, backend, damages=("", "none", "front_hip"))
     state.live.on_snapshot(snapshot_msg(50, d=2, id0=10, run_id=RUN))
     for cid in ("c0", "c1", "gone"):
-        state.live.on_stats(stats_msg(
-            "collector", cid, {"steps": 1234, "steps_per_s": 99.5, "violation_rate": 0.25,
-                               "rescues": 2, "return_mean": 0.5, "policy_version": 6,
-                               "weird": float("nan")},
-            labels={"damage": "none", "env": "point", "skill_source": "kde"},
-            arrays={"skill": np.array([0.1, 0.2], np.float32),
-                    "nan_array": np.array([1.0, np.inf])}, run_id=RUN))
-    state.live.on_stats(stats_msg("learner", "main", {"loss/world_model": 1.5,
-                                                      "policy_lag": float("inf")}, run_id=RUN))
+        state.live.on_stats(
+            stats_msg(
+                "collector",
+                cid,
+                {
+                    "steps": 1234,
+                    "steps_per_s": 99.5,
+                    "violation_rate": 0.25,
+                    "rescues": 2,
+                    "return_mean": 0.5,
+                    "policy_version": 6,
+                    "weird": float("nan"),
+                },
+                labels={"damage": "none", "env": "point", "skill_source": "kde"},
+                arrays={
+                    "skill": np.array([0.1, 0.2], np.float32),
+                    "nan_array": np.array([1.0, np.inf]),
+                },
+                run_id=RUN,
+            )
+        )
+    state.live.on_stats(
+        stats_msg(
+            "learner", "main", {"loss/world_model": 1.5, "policy_lag": float("inf")}, run_id=RUN
+        )
+    )
     with TestClient(create_app(state), raise_server_exceptions=False) as client:
         yield client, state, backend, alive
 
@@ -170,13 +189,23 @@ def test_nearest_uses_the_repertoire_metric(fed: Any) -> None:
     assert r2.json()["results"] == res
 
 
-@pytest.mark.parametrize("query,why", [
-    ("z=0.1", "coordinates"), ("z=0.1,0.2,0.3", "coordinates"), ("z=a,b", "match pattern"),
-    ("z=0.1,nan", "match pattern"), ("z=inf,1", "match pattern"), ("z=", "match pattern"),
-    ("z=1e999,1", "not finite"), ("z=0.1&z=", "match pattern"),
-    ("", "Field required"), ("z=0.1,0.2&k=0", "greater"), ("z=0.1,0.2&k=101", "less"),
-    ("z=" + ",".join(["1"] * 65), "at most"),
-])
+@pytest.mark.parametrize(
+    "query,why",
+    [
+        ("z=0.1", "coordinates"),
+        ("z=0.1,0.2,0.3", "coordinates"),
+        ("z=a,b", "match pattern"),
+        ("z=0.1,nan", "match pattern"),
+        ("z=inf,1", "match pattern"),
+        ("z=", "match pattern"),
+        ("z=1e999,1", "not finite"),
+        ("z=0.1&z=", "match pattern"),
+        ("", "Field required"),
+        ("z=0.1,0.2&k=0", "greater"),
+        ("z=0.1,0.2&k=101", "less"),
+        ("z=" + ",".join(["1"] * 65), "at most"),
+    ],
+)
 def test_nearest_rejects_bad_input(fed: Any, query: str, why: str) -> None:
     client, *_ = fed
     r = client.get(f"/skills/nearest?{query}")
@@ -193,8 +222,9 @@ def test_sample_is_forwarded_to_the_repertoire(fed: Any) -> None:
     for bad in ({"n": 0}, {"n": 4097}, {"n": "x"}, {"n": 1, "seed": -1}, {"n": 1, "x": 1}):
         assert client.post("/skills/sample", json=bad).status_code == 422, bad
     assert client.post("/skills/sample", content=b"{not json").status_code == 422
-    r = client.post("/skills/sample", content=b"\xff\xfe", headers={"content-type":
-                                                                     "application/json"})
+    r = client.post(
+        "/skills/sample", content=b"\xff\xfe", headers={"content-type": "application/json"}
+    )
     assert r.status_code == 422  # FastAPI's 400 for an unparseable body, made a 422
     assert client.post("/skills/sample", json={"n": "2"}).status_code == 422  # strict types
     assert client.get("/skills/sample").status_code == 405
@@ -240,8 +270,12 @@ def test_health_reports_the_bus_and_missing_peers(fed: Any) -> None:
     assert r.status_code == 200
     h = r.json()
     assert h["status"] == "degraded"
-    assert {"no learner alive", "no repertoire alive", "no evaluator alive",
-            "no repertoire snapshot yet"} <= set(h["problems"])
+    assert {
+        "no learner alive",
+        "no repertoire alive",
+        "no evaluator alive",
+        "no repertoire snapshot yet",
+    } <= set(h["problems"])
 
 
 def test_reads_without_a_snapshot_answer_503() -> None:
@@ -263,8 +297,7 @@ def test_reads_without_a_snapshot_answer_503() -> None:
 # ---- evaluations -----------------------------------------------------------------------------
 def test_evaluate_by_id_and_by_coordinates(fed: Any) -> None:
     client, state, backend, _ = fed
-    r = client.post("/evaluate", json={"skill": 12, "steps": 300, "damage": "front_hip",
-                                       "seed": 5})
+    r = client.post("/evaluate", json={"skill": 12, "steps": 300, "damage": "front_hip", "seed": 5})
     assert r.status_code == 200, r.json()
     body = r.json()
     snap = state.live.latest_snapshot()
@@ -279,22 +312,24 @@ def test_evaluate_by_id_and_by_coordinates(fed: Any) -> None:
     assert backend.evaluations[-1].damage == "" and not backend.evaluations[-1].has_seed
 
 
-@pytest.mark.parametrize("body,status,why", [
-    ({"skill": 9}, 404, "not in the repertoire"),
-    ({"skill": [0.1, 0.2, 0.3]}, 422, "coordinates"),
-    ({"skill": []}, 422, "at least 1"),
-    ({"skill": 12, "steps": 0}, 422, "greater"),
-    ({"skill": 12, "steps": 5001}, 422, "less than or equal to 5000"),
-    ({"skill": 12, "damage": "tail"}, 422, "unknown damage"),
-    ({"skill": 12, "seed": -1}, 422, "greater"),
-    ({"skill": -1}, 422, ""),
-    ({"skill": 1.5}, 422, ""),
-    ({"skill": "abc"}, 422, ""),
-    ({"steps": 10}, 422, "Field required"),
-    ({"skill": 12, "bogus": 1}, 422, "Extra inputs"),
-])
-def test_evaluate_rejects_bad_input(fed: Any, body: dict[str, Any], status: int,
-                                    why: str) -> None:
+@pytest.mark.parametrize(
+    "body,status,why",
+    [
+        ({"skill": 9}, 404, "not in the repertoire"),
+        ({"skill": [0.1, 0.2, 0.3]}, 422, "coordinates"),
+        ({"skill": []}, 422, "at least 1"),
+        ({"skill": 12, "steps": 0}, 422, "greater"),
+        ({"skill": 12, "steps": 5001}, 422, "less than or equal to 5000"),
+        ({"skill": 12, "damage": "tail"}, 422, "unknown damage"),
+        ({"skill": 12, "seed": -1}, 422, "greater"),
+        ({"skill": -1}, 422, ""),
+        ({"skill": 1.5}, 422, ""),
+        ({"skill": "abc"}, 422, ""),
+        ({"steps": 10}, 422, "Field required"),
+        ({"skill": 12, "bogus": 1}, 422, "Extra inputs"),
+    ],
+)
+def test_evaluate_rejects_bad_input(fed: Any, body: dict[str, Any], status: int, why: str) -> None:
     client, _, backend, _ = fed
     r = client.post("/evaluate", json=body)
     assert r.status_code == status and why in _detail(r), r.json()
@@ -303,8 +338,12 @@ def test_evaluate_rejects_bad_input(fed: Any, body: dict[str, Any], status: int,
 
 def test_evaluate_answers_503_when_the_evaluator_is_missing_or_fails(fed: Any) -> None:
     client, state, backend, alive = fed
-    for mode, status, why in [("none", 503, "did not answer"), ("unavailable", 503, "because"),
-                              ("invalid", 422, "because"), ("nan", 503, "non-finite")]:
+    for mode, status, why in [
+        ("none", 503, "did not answer"),
+        ("unavailable", 503, "because"),
+        ("invalid", 422, "because"),
+        ("nan", 503, "non-finite"),
+    ]:
         backend.eval_reply = mode
         r = client.post("/evaluate", json={"skill": 12, "steps": 10})
         assert r.status_code == status and why in _detail(r), (mode, r.json())
@@ -349,14 +388,22 @@ def test_evaluations_run_one_at_a_time(fed: Any) -> None:
 # ---- property-based: no 500 anywhere in the spec -----------------------------------------
 def _schemathesis_app() -> Any:
     backend = FakeBackend()
-    state = _state(_alive("repertoire/main", "evaluator/eval", "collector/c0"), backend,
-                   damages=("", "none", "front_hip"))
+    state = _state(
+        _alive("repertoire/main", "evaluator/eval", "collector/c0"),
+        backend,
+        damages=("", "none", "front_hip"),
+    )
     state.live.on_snapshot(snapshot_msg(30, d=2, id0=0, run_id=RUN))
-    state.live.on_stats(stats_msg("collector", "c0", {"steps": 1, "x": float("nan")},
-                                  arrays={"skill": np.zeros(2, np.float32)}, run_id=RUN))
+    state.live.on_stats(
+        stats_msg(
+            "collector",
+            "c0",
+            {"steps": 1, "x": float("nan")},
+            arrays={"skill": np.zeros(2, np.float32)},
+            run_id=RUN,
+        )
+    )
     return create_app(state)
-
-
 
 
 def _no_500(ctx: Any, response: Any, case: Any) -> bool:
@@ -369,15 +416,13 @@ SCHEMA = schemathesis.openapi.from_asgi("/openapi.json", _schemathesis_app())
 
 
 @SCHEMA.parametrize()
-@settings(max_examples=40, deadline=None, derandomize=True,
-          suppress_health_check=list(HealthCheck))
+@settings(max_examples=40, deadline=None, derandomize=True, suppress_health_check=list(HealthCheck))
 def test_openapi_property_based_no_server_errors(case: Any) -> None:
     """schemathesis's checks (status codes and bodies as documented, no 5xx, invalid
     input rejected) and ours (never a 500), except "schema-valid data is accepted": a
     skill of the wrong dimension or an unknown damage is valid JSON Schema but a 422 by
     design (the dimension comes from the live snapshot, not from the spec)."""
-    case.call_and_validate(excluded_checks=[positive_data_acceptance],
-                           additional_checks=[_no_500])
+    case.call_and_validate(excluded_checks=[positive_data_acceptance], additional_checks=[_no_500])
 
 
 # ---- over a real router ----------------------------------------------------------------------
@@ -403,27 +448,58 @@ def test_api_over_a_real_router(tmp_path: Path) -> None:
                 def on_sample(q: Any) -> None:
                     req = codec.decode(pb.SkillRequest, q.payload.to_bytes())
                     z = np.full((req.n, 2), 0.5, np.float32)
-                    q.reply(t.sample, codec.encode(pb.SkillReply(
-                        header=codec.header(RUN, "repertoire/main"), skills=codec.to_array(z),
-                        delta=0.3, snapshot_version=1)))
+                    q.reply(
+                        t.sample,
+                        codec.encode(
+                            pb.SkillReply(
+                                header=codec.header(RUN, "repertoire/main"),
+                                skills=codec.to_array(z),
+                                delta=0.3,
+                                snapshot_version=1,
+                            )
+                        ),
+                    )
 
                 def on_eval(q: Any) -> None:
                     req = codec.decode(pb.EvaluateRequest, q.payload.to_bytes())
-                    q.reply(t.evaluate, codec.encode(pb.EvaluateReply(
-                        header=codec.header(RUN, "evaluator/eval"), achieved=req.skill,
-                        distance=0.0, delta=0.3, ret=1.0, steps=req.steps)))
+                    q.reply(
+                        t.evaluate,
+                        codec.encode(
+                            pb.EvaluateReply(
+                                header=codec.header(RUN, "evaluator/eval"),
+                                achieved=req.skill,
+                                distance=0.0,
+                                delta=0.3,
+                                ret=1.0,
+                                steps=req.steps,
+                            )
+                        ),
+                    )
 
                 handles.append(peer.declare_queryable(t.sample, on_sample))
                 handles.append(peer.declare_queryable(t.evaluate, on_eval))
                 peer.put(t.snapshot, codec.encode(snapshot_msg(20, d=2, run_id=RUN)))
-                peer.put(t.collector_stats("c7"), codec.encode(stats_msg(
-                    "collector", "c7", {"steps": 5, "violation_rate": 0.5}, run_id=RUN)))
+                peer.put(
+                    t.collector_stats("c7"),
+                    codec.encode(
+                        stats_msg(
+                            "collector", "c7", {"steps": 5, "violation_rate": 0.5}, run_id=RUN
+                        )
+                    ),
+                )
                 wait_for(lambda: client.get("/skills").status_code == 200, 10, "the snapshot")
-                wait_for(lambda: [c["steps"] for c in client.get("/collectors").json()] == [5],
-                         10, "the collector's stats")
+                wait_for(
+                    lambda: [c["steps"] for c in client.get("/collectors").json()] == [5],
+                    10,
+                    "the collector's stats",
+                )
                 r = client.post("/skills/sample", json={"n": 3})
-                assert r.json() == {"skills": [[0.5, 0.5]] * 3, "source": "repertoire",
-                                    "delta": 0.3, "snapshot_version": 1}
+                assert r.json() == {
+                    "skills": [[0.5, 0.5]] * 3,
+                    "source": "repertoire",
+                    "delta": 0.3,
+                    "snapshot_version": 1,
+                }
                 r = client.post("/evaluate", json={"skill": 3, "steps": 20})
                 assert r.status_code == 200 and r.json()["steps"] == 20
                 h = client.get("/health").json()

@@ -18,8 +18,9 @@ def test_non_finite_policy_actions_are_sanitised_and_counted(tmp_path: Path) -> 
     cfg = preset("tiny", "point")
     with running_stack(tmp_path) as st:
         st.start_router()
-        c = Collector(CollectorArgs(core=cfg, bus=st.bus, run=RunConfig("test", st.runs),
-                                    collector_id="nan"))
+        c = Collector(
+            CollectorArgs(core=cfg, bus=st.bus, run=RunConfig("test", st.runs), collector_id="nan")
+        )
         try:
             env = c.env
             learner = Learner(cfg.learner, env.obs_dim, env.act_dim, 2)

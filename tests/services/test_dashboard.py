@@ -101,11 +101,17 @@ def test_colours_and_parsing() -> None:
 
 
 def test_plot_layout_groups_keys_generically() -> None:
-    keys = [("collector", "c0", "violation_rate"), ("collector", "c1", "violation_rate"),
-            ("collector", "c0", "uptime_s"), ("learner", "main", "loss/world_model"),
-            ("learner", "main", "loss/actor"), ("learner", "main", "lambda1_mean"),
-            ("learner", "main", "lambda2_mean"), ("learner", "main", "replay_steps"),
-            ("repertoire", "main", "delta")]
+    keys = [
+        ("collector", "c0", "violation_rate"),
+        ("collector", "c1", "violation_rate"),
+        ("collector", "c0", "uptime_s"),
+        ("learner", "main", "loss/world_model"),
+        ("learner", "main", "loss/actor"),
+        ("learner", "main", "lambda1_mean"),
+        ("learner", "main", "lambda2_mean"),
+        ("learner", "main", "replay_steps"),
+        ("repertoire", "main", "delta"),
+    ]
     layout = plot_layout(keys)
     assert [lbl for lbl, _ in layout[("collector", "violation_rate")]] == ["c0", "c1"]
     assert ("collector", "uptime_s") not in layout
@@ -124,9 +130,18 @@ def test_robot_pose_from_collector_stats() -> None:
     q, pos, _ = robot_pose(None, follow=True)
     assert q is None and pos[2] > 0
     e = LiveState("test")
-    e.on_stats(stats_msg("collector", "c0", {"steps": 1}, arrays={
-        "joint_angles": STANDING + 0.1, "base_position": np.array([3.0, 4.0, 0.25]),
-        "base_orientation": np.array([0.0, 0.0, 0.0, 1.0])}))
+    e.on_stats(
+        stats_msg(
+            "collector",
+            "c0",
+            {"steps": 1},
+            arrays={
+                "joint_angles": STANDING + 0.1,
+                "base_position": np.array([3.0, 4.0, 0.25]),
+                "base_orientation": np.array([0.0, 0.0, 0.0, 1.0]),
+            },
+        )
+    )
     st = e.stats_of("collector", "c0")
     q, pos, wxyz = robot_pose(st, follow=True)
     assert q is not None and np.allclose(q, STANDING + 0.1)
@@ -193,13 +208,25 @@ def test_page_shows_no_data_yet_then_the_run(
     for cid in ("c0", "c1"):
         alive[f"ursa/test/alive/collector/{cid}"] = now
         for i in range(10):
-            state.on_stats(stats_msg(
-                "collector", cid, {"steps": 100 * i, "steps_per_s": 50.0,
-                                   "violation_rate": 0.1, "rescues": 2, "policy_version": 3},
-                labels={"damage": "front_hip", "env": "point", "skill_source": "kde"},
-                arrays={"skill": np.array([0.25, -0.5], np.float32)}, stamp=now - 10 + i))
-    state.on_stats(stats_msg("learner", "main", {"loss/world_model": 1.0, "lambda1_mean": 0.2},
-                             stamp=now))
+            state.on_stats(
+                stats_msg(
+                    "collector",
+                    cid,
+                    {
+                        "steps": 100 * i,
+                        "steps_per_s": 50.0,
+                        "violation_rate": 0.1,
+                        "rescues": 2,
+                        "policy_version": 3,
+                    },
+                    labels={"damage": "front_hip", "env": "point", "skill_source": "kde"},
+                    arrays={"skill": np.array([0.25, -0.5], np.float32)},
+                    stamp=now - 10 + i,
+                )
+            )
+    state.on_stats(
+        stats_msg("learner", "main", {"loss/world_model": 1.0, "lambda1_mean": 0.2}, stamp=now)
+    )
     v.refresh()
     assert "50 skills shown" in v.summary.content and "c0, c1" in v.summary.content
     assert "front_hip" in v.collectors_md.content and "(0.25, -0.50)" in v.collectors_md.content
@@ -270,8 +297,16 @@ def test_dashboard_in_headless_chromium(tmp_path: Path) -> None:
         st.start_router()
         st.start("repertoire", "services.repertoire")
         for i in range(2):
-            st.start(f"c{i}", "services.collector", "--collector-id", f"c{i}", "--seed", str(i),
-                     "--realtime-factor", "5")
+            st.start(
+                f"c{i}",
+                "services.collector",
+                "--collector-id",
+                f"c{i}",
+                "--seed",
+                str(i),
+                "--realtime-factor",
+                "5",
+            )
         dash = st.start("dashboard", "services.dashboard", "--port", str(port))
         session = st.session()
         watch = StatsWatcher(session, st.topics)
@@ -282,8 +317,12 @@ def test_dashboard_in_headless_chromium(tmp_path: Path) -> None:
                 s = watch.get("dashboard", "main")
                 return float(s.scalars[key]) if s is not None and key in s.scalars else -1.0
 
-            wait_for(lambda: dash_stat("skills_shown") > 0 and dash_stat("collectors_alive") == 2,
-                     90, "skills and both collectors on the dashboard", 0.5)
+            wait_for(
+                lambda: dash_stat("skills_shown") > 0 and dash_stat("collectors_alive") == 2,
+                90,
+                "skills and both collectors on the dashboard",
+                0.5,
+            )
             with headless_chromium(chromium) as browser:
                 ctx = browser.new_context(viewport={"width": 1600, "height": 1000})
                 page = ctx.new_page()
@@ -303,7 +342,10 @@ def test_dashboard_in_headless_chromium(tmp_path: Path) -> None:
                 page.wait_for_function(
                     "document.querySelectorAll('canvas').length > 0 && Math.min(...Array.from("
                     "document.querySelectorAll('canvas')).map(c => parseFloat(c.style.opacity "
-                    "|| '1'))) >= 1.0", timeout=120_000, polling=500)
+                    "|| '1'))) >= 1.0",
+                    timeout=120_000,
+                    polling=500,
+                )
                 ARTIFACTS.mkdir(parents=True, exist_ok=True)
                 # the fade-in has ended: the shot shows the drawn scene, not a blank canvas
                 shot = page.screenshot(path=ARTIFACTS / "dashboard.png")
@@ -315,8 +357,7 @@ def test_dashboard_in_headless_chromium(tmp_path: Path) -> None:
                 # a second tab sees the same page, and the server counts both viewers
                 second = ctx.new_page()
                 second.goto(url)
-                second.get_by_text(re.compile(r"\d+ skills shown")).first.wait_for(
-                    timeout=60_000)
+                second.get_by_text(re.compile(r"\d+ skills shown")).first.wait_for(timeout=60_000)
                 wait_for(lambda: dash_stat("viewers") >= 2, 30, "the server to see two viewers")
                 ctx.close()
             assert "viewer connected" in dash.log()

@@ -41,8 +41,14 @@ torch.set_num_threads(1)
 
 def _policy(cfg: Config, seed: int = 0) -> Policy:
     env = build_env(cfg)
-    return Policy(cfg.learner, env.obs_dim, env.act_dim, cfg.skill_dim,
-                  feat_in_dim=int(env.feature_dims[cfg.feature_input_key]), seed=seed)
+    return Policy(
+        cfg.learner,
+        env.obs_dim,
+        env.act_dim,
+        cfg.skill_dim,
+        feat_in_dim=int(env.feature_dims[cfg.feature_input_key]),
+        seed=seed,
+    )
 
 
 # ---- the measurement -------------------------------------------------------------------------
@@ -50,10 +56,10 @@ def test_run_skill_matches_the_serial_evaluation() -> None:
     """Same env, same skill, same random draws: the evaluator's numbers are the core's."""
     cov = np.array([[0.05, 0.01], [0.01, 0.08]])
     z = np.array([0.5, -0.4])
-    ref = evaluate_skills(None, PointEnv(seed=3), z[None], 120, cov,
-                          rng=np.random.default_rng(9))
-    got = run_skill(PointEnv(seed=3), RandomActing(2, np.random.default_rng(9)), z, 120,
-                    "position", cov)
+    ref = evaluate_skills(None, PointEnv(seed=3), z[None], 120, cov, rng=np.random.default_rng(9))
+    got = run_skill(
+        PointEnv(seed=3), RandomActing(2, np.random.default_rng(9)), z, 120, "position", cov
+    )
     np.testing.assert_allclose(got.achieved, ref.achieved[0])
     assert got.distance == pytest.approx(ref.distance[0])
     assert got.ret == pytest.approx(ref.returns[0])
@@ -62,8 +68,14 @@ def test_run_skill_matches_the_serial_evaluation() -> None:
     cfg = preset("tiny", "point")
     pol = _policy(cfg, seed=1)
     ref = evaluate_skills(pol, PointEnv(seed=4), z[None], 60, cov, explore=False)
-    got = run_skill(PointEnv(seed=4), PolicyActing(pol, np.random.default_rng(0), explore=False),
-                    z, 60, "position", cov)
+    got = run_skill(
+        PointEnv(seed=4),
+        PolicyActing(pol, np.random.default_rng(0), explore=False),
+        z,
+        60,
+        "position",
+        cov,
+    )
     np.testing.assert_allclose(got.achieved, ref.achieved[0], rtol=1e-6)
     assert got.distance == pytest.approx(ref.distance[0], rel=1e-6)
 
@@ -82,8 +94,11 @@ def bus_evaluator(tmp_path: Path) -> Iterator[tuple[Stack, Evaluator, Any]]:
     with running_stack(tmp_path, run_id=RUN) as st:
         st.start_router()
         cfg = preset("tiny", "point")
-        ev = Evaluator(EvaluatorArgs(core=cfg, bus=st.bus, max_steps=500,
-                                     run=RunConfig(run_id=RUN, root=st.runs)))
+        ev = Evaluator(
+            EvaluatorArgs(
+                core=cfg, bus=st.bus, max_steps=500, run=RunConfig(run_id=RUN, root=st.runs)
+            )
+        )
         peer = st.session()
         try:
             yield st, ev, peer
@@ -92,10 +107,15 @@ def bus_evaluator(tmp_path: Path) -> Iterator[tuple[Stack, Evaluator, Any]]:
             ev.close()
 
 
-def _request(ev: Evaluator, skill: Any, steps: int = 50, damage: str = "",
-             seed: int | None = 1) -> pb.EvaluateRequest:
-    req = pb.EvaluateRequest(header=codec.header(RUN, "api/main"), steps=steps, damage=damage,
-                             skill=codec.to_array(np.asarray(skill, np.float32)))
+def _request(
+    ev: Evaluator, skill: Any, steps: int = 50, damage: str = "", seed: int | None = 1
+) -> pb.EvaluateRequest:
+    req = pb.EvaluateRequest(
+        header=codec.header(RUN, "api/main"),
+        steps=steps,
+        damage=damage,
+        skill=codec.to_array(np.asarray(skill, np.float32)),
+    )
     if seed is not None:
         req.has_seed, req.seed = True, seed
     return req
@@ -106,8 +126,10 @@ def test_evaluator_validates_and_needs_a_snapshot(
 ) -> None:
     st, ev, peer = bus_evaluator
     for skill, steps, damage, why in [
-        ([0.1, 0.2, 0.3], 50, "", "shape"), ([0.1, np.nan], 50, "", "finite"),
-        ([0.1, 0.2], 0, "", "steps"), ([0.1, 0.2], 501, "", "steps"),
+        ([0.1, 0.2, 0.3], 50, "", "shape"),
+        ([0.1, np.nan], 50, "", "finite"),
+        ([0.1, 0.2], 0, "", "steps"),
+        ([0.1, 0.2], 501, "", "steps"),
         ([0.1, 0.2], 50, "front_hip", "damage"),
     ]:
         reply = ev.handle(_request(ev, skill, steps, damage))
@@ -139,24 +161,39 @@ def test_evaluator_serves_queries_and_loads_the_learners_weights(
         cfg = ev.cfg
         pol = _policy(cfg, seed=5)
         blob = pack_policy_weights(pol.modules(), version=3, vae_version=0)
-        wrong = pb.PolicyWeights(header=codec.header(RUN, "learner/main"), version=2,
-                                 safetensors=blob, config_hash="nope")
+        wrong = pb.PolicyWeights(
+            header=codec.header(RUN, "learner/main"),
+            version=2,
+            safetensors=blob,
+            config_hash="nope",
+        )
         peer.put(t.weights, codec.encode(wrong))
         wait_for(lambda: ev._pending is not None, 10, "the weights to arrive")
-        r = query_one(peer, t.evaluate, pb.EvaluateReply,
-                      codec.encode(_request(ev, [0.2, 0.2])), timeout_s=30)
+        r = query_one(
+            peer, t.evaluate, pb.EvaluateReply, codec.encode(_request(ev, [0.2, 0.2])), timeout_s=30
+        )
         assert r is not None and not r.error and r.policy_version == 0
         assert ev.rt.drops.counts["config_mismatch"] == 1
-        good = pb.PolicyWeights(header=codec.header(RUN, "learner/main"), version=3,
-                                safetensors=blob, config_hash=config_hash(cfg.learner))
+        good = pb.PolicyWeights(
+            header=codec.header(RUN, "learner/main"),
+            version=3,
+            safetensors=blob,
+            config_hash=config_hash(cfg.learner),
+        )
         peer.put(t.weights, codec.encode(good))
         wait_for(lambda: ev._pending is not None, 10, "the weights to arrive")
-        r = query_one(peer, t.evaluate, pb.EvaluateReply,
-                      codec.encode(_request(ev, [0.2, 0.2])), timeout_s=30)
+        r = query_one(
+            peer, t.evaluate, pb.EvaluateReply, codec.encode(_request(ev, [0.2, 0.2])), timeout_s=30
+        )
         assert r is not None and not r.error and r.policy_version == 3
-        expected = run_skill(build_env(cfg, seed=1), PolicyActing(pol, np.random.default_rng(1)),
-                             np.array([0.2, 0.2], np.float32), 50, "position",
-                             np.eye(2) * 0.05)
+        expected = run_skill(
+            build_env(cfg, seed=1),
+            PolicyActing(pol, np.random.default_rng(1)),
+            np.array([0.2, 0.2], np.float32),
+            50,
+            "position",
+            np.eye(2) * 0.05,
+        )
         assert r.distance == pytest.approx(expected.distance, rel=1e-5)
     finally:
         ev.rt.stop.set()
@@ -174,35 +211,49 @@ def trained_point(point_runs: dict[str, Any]) -> dict[str, Any]:
     learner = Learner(cfg.learner, PointEnv.obs_dim, PointEnv.act_dim, 2)
     learner.load_state_dict(state)
     rep = Repertoire.load(run_dir / "repertoire" / "archive.npz")
-    return {"cfg": cfg, "weights": learner.policy_weights_bytes(), "updates": learner.updates,
-            "train_s": point_runs["seconds"]["ursa"], "skills": np.asarray(rep.skills),
-            "ids": np.asarray(rep.ids), "ages": np.asarray(rep.ages),
-            "nn": np.asarray(rep.nn_dist), "cov": np.asarray(rep.cov),
-            "delta": np.float64(rep.delta()), "n_z": rep.config.n_z}
+    return {
+        "cfg": cfg,
+        "weights": learner.policy_weights_bytes(),
+        "updates": learner.updates,
+        "train_s": point_runs["seconds"]["ursa"],
+        "skills": np.asarray(rep.skills),
+        "ids": np.asarray(rep.ids),
+        "ages": np.asarray(rep.ages),
+        "nn": np.asarray(rep.nn_dist),
+        "cov": np.asarray(rep.cov),
+        "delta": np.float64(rep.delta()),
+        "n_z": rep.config.n_z,
+    }
 
 
 def _snapshot_of(tp: dict[str, Any]) -> pb.RepertoireSnapshot:
     return pb.RepertoireSnapshot(
-        header=codec.header(RUN, "repertoire/main"), version=1,
+        header=codec.header(RUN, "repertoire/main"),
+        version=1,
         skills=codec.to_array(tp["skills"].astype(np.float32)),
         ids=codec.to_array(tp["ids"].astype(np.int64)),
         ages=codec.to_array(tp["ages"].astype(np.int64)),
         nn_dist=codec.to_array(tp["nn"].astype(np.float32)),
-        cov=codec.to_array(tp["cov"].astype(np.float64)), delta=float(tp["delta"]),
-        capacity=len(tp["skills"]), n_z=int(tp["n_z"]))
+        cov=codec.to_array(tp["cov"].astype(np.float64)),
+        delta=float(tp["delta"]),
+        capacity=len(tp["skills"]),
+        n_z=int(tp["n_z"]),
+    )
 
 
 @pytest.mark.slow
 @pytest.mark.timeout(3600)
 def test_evaluate_trained_point_policy_reaches_a_repertoire_skill(
-    tmp_path: Path, trained_point: dict[str, Any],
+    tmp_path: Path,
+    trained_point: dict[str, Any],
 ) -> None:
     tp = trained_point
     cfg: Config = tp["cfg"]
     skills, cov, delta = tp["skills"], tp["cov"], float(tp["delta"])
     tensors = safetensors_load(tp["weights"])
-    assert all(np.isfinite(v).all() for v in tensors.values()), \
+    assert all(np.isfinite(v).all() for v in tensors.values()), (
         "the learner produced non-finite weights"
+    )
     policy = _policy(cfg)
     policy.load_weights_bytes(tp["weights"], version=7)
     # pick the best-achieved of 32 repertoire skills, measured exactly as the evaluator will
@@ -210,47 +261,73 @@ def test_evaluate_trained_point_policy_reaches_a_repertoire_skill(
     rows = rng.choice(len(skills), size=min(32, len(skills)), replace=False)
     measured = []
     for seed, row in enumerate(rows):
-        r = run_skill(build_env(cfg, seed=seed), PolicyActing(policy, np.random.default_rng(seed)),
-                      skills[row].astype(np.float32), 250, "position", cov)
-        rnd = run_skill(build_env(cfg, seed=seed), RandomActing(2, np.random.default_rng(seed)),
-                        skills[row].astype(np.float32), 250, "position", cov)
+        r = run_skill(
+            build_env(cfg, seed=seed),
+            PolicyActing(policy, np.random.default_rng(seed)),
+            skills[row].astype(np.float32),
+            250,
+            "position",
+            cov,
+        )
+        rnd = run_skill(
+            build_env(cfg, seed=seed),
+            RandomActing(2, np.random.default_rng(seed)),
+            skills[row].astype(np.float32),
+            250,
+            "position",
+            cov,
+        )
         measured.append((r.distance, seed, int(row), rnd.distance))
     distances = np.array([m[0] for m in measured])
     random_distances = np.array([m[3] for m in measured])
-    print(f"trained {tp['updates']} updates in {tp['train_s']:.0f} s; "
-          f"δ {delta:.3f}; within δ {np.mean(distances <= delta):.2f}; median distance "
-          f"{np.median(distances):.2f} (random policy {np.median(random_distances):.2f})")
+    print(
+        f"trained {tp['updates']} updates in {tp['train_s']:.0f} s; "
+        f"δ {delta:.3f}; within δ {np.mean(distances <= delta):.2f}; median distance "
+        f"{np.median(distances):.2f} (random policy {np.median(random_distances):.2f})"
+    )
     assert np.median(distances) < np.median(random_distances)  # it learned something
     best, seed, row, _ = min(measured)
     skill_id = int(tp["ids"][row])
 
     with running_stack(tmp_path, run_id=RUN) as st:
         st.start_router()
-        ev = st.start("eval", "services.evaluator", "--collector-id", "eval",
-                      *cli_args("ursa-supervised")[4:])
+        ev = st.start(
+            "eval", "services.evaluator", "--collector-id", "eval", *cli_args("ursa-supervised")[4:]
+        )
         peer = st.session()
         t = st.topics
-        weights = codec.encode(pb.PolicyWeights(
-            header=codec.header(RUN, "learner/main"), version=7,
-            safetensors=tp["weights"], config_hash=config_hash(cfg.learner)))
+        weights = codec.encode(
+            pb.PolicyWeights(
+                header=codec.header(RUN, "learner/main"),
+                version=7,
+                safetensors=tp["weights"],
+                config_hash=config_hash(cfg.learner),
+            )
+        )
         handles: list[Any] = [
             peer.liveliness().declare_token(t.alive("learner", "main")),
             peer.liveliness().declare_token(t.alive("repertoire", "main")),
             peer.declare_queryable(t.weights, lambda q: q.reply(t.weights, weights)),
-            peer.declare_queryable(t.snapshot, lambda q: q.reply(
-                t.snapshot, codec.encode(_snapshot_of(tp)))),
+            peer.declare_queryable(
+                t.snapshot, lambda q: q.reply(t.snapshot, codec.encode(_snapshot_of(tp)))
+            ),
         ]
         svc = ApiService(ApiArgs(core=cfg, bus=st.bus, run=RunConfig(run_id=RUN, root=st.runs)))
         try:
             peer.put(t.snapshot, codec.encode(_snapshot_of(tp)))
             with TestClient(svc.app) as client:
                 wait_for(lambda: "EVALUATOR READY" in ev.log(), 60, "the evaluator")
-                wait_for(lambda: client.get("/health").json()["peers"]["evaluator"], 30,
-                         "the API to see the evaluator")
-                wait_for(lambda: client.get(f"/skills/{skill_id}").status_code == 200, 30,
-                         "the snapshot to reach the API")
-                r = client.post("/evaluate", json={"skill": skill_id, "steps": 250,
-                                                   "seed": seed})
+                wait_for(
+                    lambda: client.get("/health").json()["peers"]["evaluator"],
+                    30,
+                    "the API to see the evaluator",
+                )
+                wait_for(
+                    lambda: client.get(f"/skills/{skill_id}").status_code == 200,
+                    30,
+                    "the snapshot to reach the API",
+                )
+                r = client.post("/evaluate", json={"skill": skill_id, "steps": 250, "seed": seed})
                 assert r.status_code == 200, r.json()
                 body = r.json()
         finally:

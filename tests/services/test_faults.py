@@ -39,8 +39,15 @@ def _start(st: Stack) -> None:
     st.start("repertoire", "services.repertoire")
     st.start("learner", "services.learner", *LEARNER_ARGS)
     for i in range(2):
-        st.start(f"c{i}", "services.collector", "--collector-id", f"c{i}", "--seed", str(i),
-                 *COLLECTOR_ARGS)
+        st.start(
+            f"c{i}",
+            "services.collector",
+            "--collector-id",
+            f"c{i}",
+            "--seed",
+            str(i),
+            *COLLECTOR_ARGS,
+        )
 
 
 def test_collector_killed_leaves_others_running_and_rejoins_with_latest_weights(
@@ -51,26 +58,37 @@ def test_collector_killed_leaves_others_running_and_rejoins_with_latest_weights(
         session = st.session()
         w = StatsWatcher(session, st.topics)
         wait_for(lambda: _alive_collectors(w) == {"c0", "c1"}, 60, "both collectors alive", 0.5)
-        wait_for(lambda: _scalar(w, "collector", "c0", "policy_version") > 0, 120,
-                 "trained weights reaching the collectors", 0.5)
+        wait_for(
+            lambda: _scalar(w, "collector", "c0", "policy_version") > 0,
+            120,
+            "trained weights reaching the collectors",
+            0.5,
+        )
 
         st.procs["c0"].kill(signal.SIGKILL)
         steps_c1 = _scalar(w, "collector", "c1", "steps")
         wait_for(lambda: _alive_collectors(w) == {"c1"}, 30, "the learner to see c0 leave", 0.5)
-        wait_for(lambda: _scalar(w, "collector", "c1", "steps") > steps_c1 + 200, 30,
-                 "c1 to keep stepping", 0.5)
+        wait_for(
+            lambda: _scalar(w, "collector", "c1", "steps") > steps_c1 + 200,
+            30,
+            "c1 to keep stepping",
+            0.5,
+        )
         assert st.procs["learner"].alive() and st.procs["repertoire"].alive()
 
-        st.start("c0", "services.collector", "--collector-id", "c0", "--seed", "0",
-                 *COLLECTOR_ARGS)
+        st.start("c0", "services.collector", "--collector-id", "c0", "--seed", "0", *COLLECTOR_ARGS)
         wait_for(lambda: _alive_collectors(w) == {"c0", "c1"}, 60, "c0 to rejoin", 0.5)
 
         def rejoined_with_latest() -> bool:
             cs = w.get("collector", "c0")
             ls = w.get("learner", "main")
-            return bool(cs and ls and cs.scalars["incarnation"] == 1
-                        and cs.scalars["policy_version"] > 0
-                        and cs.scalars["policy_version"] >= ls.scalars["policy_version"] - 200)
+            return bool(
+                cs
+                and ls
+                and cs.scalars["incarnation"] == 1
+                and cs.scalars["policy_version"] > 0
+                and cs.scalars["policy_version"] >= ls.scalars["policy_version"] - 200
+            )
 
         wait_for(rejoined_with_latest, 60, "c0 to act with the latest weights", 0.5)
         ls = w.get("learner", "main")
@@ -85,8 +103,12 @@ def test_learner_killed_resumes_from_checkpoint_with_its_replay(tmp_path: Path) 
         session = st.session()
         w = StatsWatcher(session, st.topics)
         ckpt = st.run_dir / "checkpoints" / "learner.pt"
-        wait_for(lambda: ckpt.exists() and _scalar(w, "learner", "main", "updates") >= 5, 180,
-                 "a checkpoint after a few updates", 0.5)
+        wait_for(
+            lambda: ckpt.exists() and _scalar(w, "learner", "main", "updates") >= 5,
+            180,
+            "a checkpoint after a few updates",
+            0.5,
+        )
         time.sleep(4)  # let another checkpoint land after more updates
         st.procs["learner"].kill(signal.SIGKILL)
         st.procs["learner"].popen.wait(10)
@@ -108,8 +130,12 @@ def test_learner_killed_resumes_from_checkpoint_with_its_replay(tmp_path: Path) 
         assert first.scalars["updates"] >= ckpt_updates
         assert first.scalars["replay_steps"] >= written
         assert "resumed from checkpoint" in st.procs["learner"].log()
-        wait_for(lambda: _scalar(w, "learner", "main", "updates") > ckpt_updates + 2, 120,
-                 "training to go on", 0.5)
+        wait_for(
+            lambda: _scalar(w, "learner", "main", "updates") > ckpt_updates + 2,
+            120,
+            "training to go on",
+            0.5,
+        )
         w.close()
         session.close()
 
@@ -119,8 +145,12 @@ def test_router_restart_everyone_reconnects_and_data_flows(tmp_path: Path) -> No
     own, chunks and features flow again and none was lost. Each step waits on state observed
     over the bus (liveliness tokens, counters in stats stamped after the restart), never on a
     fixed time; a failure carries every process's full log and the last stats seen."""
-    everyone = {("repertoire", "main"), ("learner", "main"), ("collector", "c0"),
-                ("collector", "c1")}
+    everyone = {
+        ("repertoire", "main"),
+        ("learner", "main"),
+        ("collector", "c0"),
+        ("collector", "c1"),
+    }
     with running_stack(tmp_path) as st:
         _start(st)
         session = st.session()
@@ -136,27 +166,50 @@ def test_router_restart_everyone_reconnects_and_data_flows(tmp_path: Path) -> No
 
         try:
             wait_for(lambda: everyone <= alive(), 120, "every service's liveliness token", 0.2)
-            wait_for(lambda: _scalar(w, "learner", "main", "chunks/c1") > 10, 120,
-                     "data flowing", 0.2)
+            wait_for(
+                lambda: _scalar(w, "learner", "main", "chunks/c1") > 10, 120, "data flowing", 0.2
+            )
             st.procs["router"].stop()
             # our session lost the router: every service's token goes with it
             wait_for(lambda: not everyone & alive(), 60, "the tokens to go with the router")
             restarted = time.time()
             st.start_router()
-            wait_for(lambda: everyone <= alive(), 120, "every service back on the new router",
-                     0.2)
+            wait_for(lambda: everyone <= alive(), 120, "every service back on the new router", 0.2)
             # counters of stats published after the restart, then their growth
-            ls0 = wait_for(lambda: fresh("learner", "main", restarted), 60,
-                           "learner stats after the restart", 0.1)
-            rs0 = wait_for(lambda: fresh("repertoire", "main", restarted), 60,
-                           "repertoire stats after the restart", 0.1)
+            ls0 = wait_for(
+                lambda: fresh("learner", "main", restarted),
+                60,
+                "learner stats after the restart",
+                0.1,
+            )
+            rs0 = wait_for(
+                lambda: fresh("repertoire", "main", restarted),
+                60,
+                "repertoire stats after the restart",
+                0.1,
+            )
             before = {k: ls0.scalars.get(f"chunks/{k}", 0.0) for k in ("c0", "c1")}
-            wait_for(lambda: all(_scalar(w, "learner", "main", f"chunks/{k}") > before[k] + 20
-                                 for k in ("c0", "c1")), 120, "chunks after the restart", 0.2)
-            wait_for(lambda: _scalar(w, "repertoire", "main", "commits")
-                     > rs0.scalars["commits"], 120, "features after the restart", 0.2)
-            wait_for(lambda: _alive_collectors(w) == {"c0", "c1"}, 60,
-                     "the learner to see both collectors", 0.2)
+            wait_for(
+                lambda: all(
+                    _scalar(w, "learner", "main", f"chunks/{k}") > before[k] + 20
+                    for k in ("c0", "c1")
+                ),
+                120,
+                "chunks after the restart",
+                0.2,
+            )
+            wait_for(
+                lambda: _scalar(w, "repertoire", "main", "commits") > rs0.scalars["commits"],
+                120,
+                "features after the restart",
+                0.2,
+            )
+            wait_for(
+                lambda: _alive_collectors(w) == {"c0", "c1"},
+                60,
+                "the learner to see both collectors",
+                0.2,
+            )
             ls = w.get("learner", "main")
             assert ls is not None
             # the collectors held their chunks while the router was down: nothing was lost
@@ -165,8 +218,9 @@ def test_router_restart_everyone_reconnects_and_data_flows(tmp_path: Path) -> No
             assert not dead, f"{dead} died"
         except Exception as e:
             seen = {k: dict(v.scalars) for k, v in w.latest.items()}
-            raise AssertionError(f"{e}\nalive: {sorted(alive())}\nlast stats: {seen}\n"
-                                 f"{st.logs(tail=None)}") from e
+            raise AssertionError(
+                f"{e}\nalive: {sorted(alive())}\nlast stats: {seen}\n{st.logs(tail=None)}"
+            ) from e
         finally:
             presence.undeclare()
             w.close()

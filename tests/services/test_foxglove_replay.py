@@ -55,8 +55,7 @@ def a1_chunks(tmp_path_factory: pytest.TempPathFactory) -> list[pb.TransitionChu
                 got.append(codec.decode(pb.TransitionChunk, sample.payload.to_bytes()))
 
         sub = session.declare_subscriber(Topics("fox").transitions("c0"), on)
-        c = Collector(CollectorArgs(core=cfg, bus=bus, run=run, collector_id="c0",
-                                    max_steps=STEPS))
+        c = Collector(CollectorArgs(core=cfg, bus=bus, run=run, collector_id="c0", max_steps=STEPS))
         try:
             c.run()
         finally:
@@ -77,9 +76,11 @@ def _decoded(path: Path, topic_prefix: str) -> list[tuple[str, int, object]]:
     """(topic, log time, message decoded with the file's own schema) of matching messages."""
     with open(path, "rb") as f:
         reader = make_reader(f, decoder_factories=[DecoderFactory()])
-        return [(ch.topic, m.log_time, dec)
-                for _s, ch, m, dec in reader.iter_decoded_messages(log_time_order=True)
-                if ch.topic.startswith(topic_prefix)]
+        return [
+            (ch.topic, m.log_time, dec)
+            for _s, ch, m, dec in reader.iter_decoded_messages(log_time_order=True)
+            if ch.topic.startswith(topic_prefix)
+        ]
 
 
 def _pybullet_links(base_pose: np.ndarray, q: np.ndarray) -> dict[str, np.ndarray]:
@@ -87,11 +88,12 @@ def _pybullet_links(base_pose: np.ndarray, q: np.ndarray) -> dict[str, np.ndarra
     (7,) and joint angles (12,) set directly."""
     cid = p.connect(p.DIRECT)
     try:
-        robot = p.loadURDF(a1_urdf_path(), flags=p.URDF_USE_INERTIA_FROM_FILE,
-                           physicsClientId=cid)
+        robot = p.loadURDF(a1_urdf_path(), flags=p.URDF_USE_INERTIA_FROM_FILE, physicsClientId=cid)
         p.resetBasePositionAndOrientation(robot, base_pose[:3], base_pose[3:], physicsClientId=cid)
-        ids = {p.getJointInfo(robot, i, physicsClientId=cid)[1].decode(): i
-               for i in range(p.getNumJoints(robot, physicsClientId=cid))}
+        ids = {
+            p.getJointInfo(robot, i, physicsClientId=cid)[1].decode(): i
+            for i in range(p.getNumJoints(robot, physicsClientId=cid))
+        }
         for name, angle in zip(JOINT_NAMES, q, strict=True):
             p.resetJointState(robot, ids[name], float(angle), physicsClientId=cid)
         out = {}
@@ -166,24 +168,34 @@ def test_replay_segment_has_every_a1_link_frame_at_the_recorded_times(
     assert [t for _, t, _ in js] == times.tolist()
     _, _, last = js[-1]
     assert [j.name for j in last.joints] == list(JOINT_NAMES)  # type: ignore[attr-defined]
-    np.testing.assert_allclose([j.position for j in last.joints],  # type: ignore[attr-defined]
-                               obs[-1, OBS_LAYOUT["joint_pos"]], atol=1e-6)
-    np.testing.assert_allclose([j.velocity for j in last.joints],  # type: ignore[attr-defined]
-                               obs[-1, OBS_LAYOUT["joint_vel"]], atol=1e-5)
+    np.testing.assert_allclose(
+        [j.position for j in last.joints],  # type: ignore[attr-defined]
+        obs[-1, OBS_LAYOUT["joint_pos"]],
+        atol=1e-6,
+    )
+    np.testing.assert_allclose(
+        [j.velocity for j in last.joints],  # type: ignore[attr-defined]
+        obs[-1, OBS_LAYOUT["joint_vel"]],
+        atol=1e-5,
+    )
 
     (model,) = _decoded(seg, "/robot/c0/model")
     _, t0, scene = model
     assert t0 == times[0]
     ents = {e.frame_id: e for e in scene.entities}  # type: ignore[attr-defined]
     assert {"c0/trunk", "c0/FR_hip", "c0/FR_upper", "c0/FR_lower"} <= set(ents)
-    assert all(e.frame_locked and e.models and e.models[0].data[:4] == b"glTF"
-               for e in ents.values())
+    assert all(
+        e.frame_locked and e.models and e.models[0].data[:4] == b"glTF" for e in ents.values()
+    )
 
 
 def test_a_chunk_without_a_body_writes_no_robot_view(tmp_path: Path) -> None:
-    chunk = pb.TransitionChunk(header=codec.header("r", "collector/p0"), collector_id="p0",
-                               obs=codec.to_array(np.zeros((5, 4), np.float32)),
-                               stamp=codec.to_array(np.arange(1.0, 6.0)))
+    chunk = pb.TransitionChunk(
+        header=codec.header("r", "collector/p0"),
+        collector_id="p0",
+        obs=codec.to_array(np.zeros((5, 4), np.float32)),
+        stamp=codec.to_array(np.arange(1.0, 6.0)),
+    )
     w = ReplayWriter(tmp_path)
     w.write(chunk)
     w.close()

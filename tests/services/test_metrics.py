@@ -20,16 +20,19 @@ def _scalars(run_dir: Path) -> dict[str, dict[str, list[tuple[int, float]]]]:
     for d in sorted(p for p in tensorboard_dir(run_dir).iterdir() if p.is_dir()):
         acc = EventAccumulator(str(d))
         acc.Reload()
-        out[d.name] = {t: [(e.step, e.value) for e in acc.Scalars(t)]
-                       for t in acc.Tags()["scalars"]}
+        out[d.name] = {
+            t: [(e.step, e.value) for e in acc.Scalars(t)] for t in acc.Tags()["scalars"]
+        }
     return out
 
 
 def test_learner_rows_reach_tensorboard_at_updates_and_env_steps(tmp_path: Path) -> None:
     m = MetricsLog(tmp_path, "r1", "learner", "main")
-    rows = [{"updates": 0, "ingested_steps": 50, "wm/loss": 3.0},
-            {"updates": 40, "ingested_steps": 120, "wm/loss": 2.5, "chunks/c0": 7},
-            {"updates": 95, "ingested_steps": 260, "wm/loss": 1.25, "chunks/c0": 9}]
+    rows = [
+        {"updates": 0, "ingested_steps": 50, "wm/loss": 3.0},
+        {"updates": 40, "ingested_steps": 120, "wm/loss": 2.5, "chunks/c0": 7},
+        {"updates": 95, "ingested_steps": 260, "wm/loss": 1.25, "chunks/c0": 9},
+    ]
     for i, r in enumerate(rows):
         m.write(1000.0 + i, {k: float(v) for k, v in r.items()}, {"mode": "ursa"})
     m.close()
@@ -49,8 +52,11 @@ def test_learner_rows_reach_tensorboard_at_updates_and_env_steps(tmp_path: Path)
 
 
 def test_step_axis_per_service(tmp_path: Path) -> None:
-    for service, sid, key in (("collector", "c3", "steps"), ("repertoire", "main", "commits"),
-                              ("dashboard", "main", None)):
+    for service, sid, key in (
+        ("collector", "c3", "steps"),
+        ("repertoire", "main", "commits"),
+        ("dashboard", "main", None),
+    ):
         m = MetricsLog(tmp_path, "r1", service, sid)
         for i, step in enumerate((200, 450, 700)):
             sc = {"x": float(i)} | ({key: float(step)} if key else {})
@@ -110,10 +116,13 @@ def test_wandb_offline_run_holds_the_rows(tmp_path: Path) -> None:
         kind = r.WhichOneof("record_type")  # type: ignore[attr-defined]
         if kind == "history":
             items = r.history.item  # type: ignore[attr-defined]
-            history.append({i.key or ".".join(i.nested_key): json.loads(i.value_json)
-                            for i in items})
+            history.append(
+                {i.key or ".".join(i.nested_key): json.loads(i.value_json) for i in items}
+            )
         elif kind == "run":
             runs.append(r.run)  # type: ignore[attr-defined]
     assert [(h["updates"], h["ingested_steps"], h["wm/loss"]) for h in history] == [
-        (10, 100, 2.0), (30, 250, 1.5)]
+        (10, 100, 2.0),
+        (30, 250, 1.5),
+    ]
     assert runs and runs[0].run_group == "run-7" and runs[0].display_name == "learner-main"

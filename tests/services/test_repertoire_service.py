@@ -21,8 +21,11 @@ pytestmark = pytest.mark.slow
 
 def _features(seed: int, n: int, center: tuple[float, float]) -> bytes:
     pts = np.random.default_rng(seed).normal(center, 0.2, (n, 2)).astype(np.float32)
-    msg = pb.SafeFeatures(header=codec.header("test", f"client/{seed}"),
-                          collector_id=f"client{seed}", features=codec.to_array(pts))
+    msg = pb.SafeFeatures(
+        header=codec.header("test", f"client/{seed}"),
+        collector_id=f"client{seed}",
+        features=codec.to_array(pts),
+    )
     return codec.encode(msg)
 
 
@@ -50,8 +53,7 @@ def test_two_clients_commit_sample_and_restore_after_sigkill(tmp_path: Path) -> 
         assert len(skills) == 240  # tiny preset: N_R = 300, nothing evicted yet
         assert (skills[:, 0] < 0).sum() == 120 and (skills[:, 0] > 0).sum() == 120
 
-        req = pb.SkillRequest(header=codec.header("test", "client/1"), n=256, has_seed=True,
-                              seed=3)
+        req = pb.SkillRequest(header=codec.header("test", "client/1"), n=256, has_seed=True, seed=3)
         reply = query_one(s2, st.topics.sample, pb.SkillReply, codec.encode(req))
         assert reply is not None and not reply.error
         samples = codec.from_array(reply.skills)

@@ -78,13 +78,29 @@ def test_corrupted_messages_on_every_key_are_counted_and_never_accepted(tmp_path
 
         def ready() -> bool:
             rep = watcher.get("repertoire", "main")
-            return bool(rep and rep.scalars["size"] >= 20 and watcher.get("learner", "main")
-                        and watcher.get("collector", "c0") and watcher.get("evaluator", "eval")
-                        and watcher.get("api", "main")
-                        and all(k in captured for k in (t.transitions("c0"), t.features("c0"),
-                                                        t.snapshot, t.collector_stats("c0")))
-                        and len(codec.from_array(codec.decode(
-                            pb.RepertoireSnapshot, captured[t.snapshot]).skills)) >= 2)
+            return bool(
+                rep
+                and rep.scalars["size"] >= 20
+                and watcher.get("learner", "main")
+                and watcher.get("collector", "c0")
+                and watcher.get("evaluator", "eval")
+                and watcher.get("api", "main")
+                and all(
+                    k in captured
+                    for k in (
+                        t.transitions("c0"),
+                        t.features("c0"),
+                        t.snapshot,
+                        t.collector_stats("c0"),
+                    )
+                )
+                and len(
+                    codec.from_array(
+                        codec.decode(pb.RepertoireSnapshot, captured[t.snapshot]).skills
+                    )
+                )
+                >= 2
+            )
 
         wait_for(ready, 180, "the stack to run and publish on every key", every=0.5)
         sub.undeclare()
@@ -93,10 +109,16 @@ def test_corrupted_messages_on_every_key_are_counted_and_never_accepted(tmp_path
             s = watcher.get(service, sid)
             return float(s.scalars.get(name, 0.0)) if s else 0.0
 
-        consumers = [("repertoire", "main"), ("learner", "main"), ("collector", "c0"),
-                     ("evaluator", "eval"), ("api", "main")]
-        before = {c: (scal(*c, "dropped/integrity"), scal(*c, "dropped/out_of_bounds"))
-                  for c in consumers}
+        consumers = [
+            ("repertoire", "main"),
+            ("learner", "main"),
+            ("collector", "c0"),
+            ("evaluator", "eval"),
+            ("api", "main"),
+        ]
+        before = {
+            c: (scal(*c, "dropped/integrity"), scal(*c, "dropped/out_of_bounds")) for c in consumers
+        }
         policy_before = scal("collector", "c0", "policy_version")
 
         rng = random.Random(0)
@@ -112,11 +134,20 @@ def test_corrupted_messages_on_every_key_are_counted_and_never_accepted(tmp_path
         rep_, lrn, col, ev, api = consumers
         # transitions -> learner
         chunk = codec.decode(pb.TransitionChunk, captured[t.transitions("c0")])
-        put(t.transitions("c0"), _flipped(pb.TransitionChunk, captured[t.transitions("c0")], rng,
-                                          FLIPS), [lrn], oob=False)
+        put(
+            t.transitions("c0"),
+            _flipped(pb.TransitionChunk, captured[t.transitions("c0")], rng, FLIPS),
+            [lrn],
+            oob=False,
+        )
         bad_chunks = []
-        for field, factor in (("obs", 1e30), ("action", 5.0), ("features", 1e27),
-                              ("skill", 1e30), ("reward", np.inf)):
+        for field, factor in (
+            ("obs", 1e30),
+            ("action", 5.0),
+            ("features", 1e27),
+            ("skill", 1e30),
+            ("reward", np.inf),
+        ):
             m = pb.TransitionChunk()
             m.CopyFrom(chunk)
             m.header.sender = "collector/evil"
@@ -126,8 +157,12 @@ def test_corrupted_messages_on_every_key_are_counted_and_never_accepted(tmp_path
         put(t.transitions("evil"), bad_chunks, [lrn], oob=True)
         # features -> repertoire
         feats = codec.decode(pb.SafeFeatures, captured[t.features("c0")])
-        put(t.features("c0"), _flipped(pb.SafeFeatures, captured[t.features("c0")], rng, FLIPS),
-            [rep_], oob=False)
+        put(
+            t.features("c0"),
+            _flipped(pb.SafeFeatures, captured[t.features("c0")], rng, FLIPS),
+            [rep_],
+            oob=False,
+        )
         bad_feats = []
         for factor, nan in ((4e30, False), (3.0, False), (1.0, True)):
             m = pb.SafeFeatures()
@@ -137,11 +172,18 @@ def test_corrupted_messages_on_every_key_are_counted_and_never_accepted(tmp_path
         put(t.features("evil"), bad_feats, [rep_], oob=True)
         # snapshots -> learner, evaluator, api
         snap = codec.decode(pb.RepertoireSnapshot, captured[t.snapshot])
-        put(t.snapshot, _flipped(pb.RepertoireSnapshot, captured[t.snapshot], rng, FLIPS),
-            [lrn, ev, api], oob=False)
+        put(
+            t.snapshot,
+            _flipped(pb.RepertoireSnapshot, captured[t.snapshot], rng, FLIPS),
+            [lrn, ev, api],
+            oob=False,
+        )
         bad_snaps = []
-        for field, factor, nan in (("skills", 4e30, False), ("skills", 1.0, True),
-                                   ("cov", -1e3, False)):
+        for field, factor, nan in (
+            ("skills", 4e30, False),
+            ("skills", 1.0, True),
+            ("cov", -1e3, False),
+        ):
             m = pb.RepertoireSnapshot()
             m.CopyFrom(snap)
             m.version = 10**9
@@ -155,18 +197,35 @@ def test_corrupted_messages_on_every_key_are_counted_and_never_accepted(tmp_path
         tensors = {"w": np.ones((4, 4), np.float32)}
         w_nan = save({"w": np.full((4, 4), np.nan, np.float32)})
         w_huge = save({"w": np.full((4, 4), 1e30, np.float32)})
-        bad_w = [_reframed(pb.PolicyWeights(header=codec.header(st.run_id, "learner/main"),
-                                            version=10**6, safetensors=b, config_hash="x"))
-                 for b in (w_nan, w_huge, b"\x00not safetensors")]
-        template = good_w or codec.encode(pb.PolicyWeights(
-            header=codec.header(st.run_id, "learner/main"), version=1,
-            safetensors=save(tensors), config_hash="x"))
+        bad_w = [
+            _reframed(
+                pb.PolicyWeights(
+                    header=codec.header(st.run_id, "learner/main"),
+                    version=10**6,
+                    safetensors=b,
+                    config_hash="x",
+                )
+            )
+            for b in (w_nan, w_huge, b"\x00not safetensors")
+        ]
+        template = good_w or codec.encode(
+            pb.PolicyWeights(
+                header=codec.header(st.run_id, "learner/main"),
+                version=1,
+                safetensors=save(tensors),
+                config_hash="x",
+            )
+        )
         put(t.weights, _flipped(pb.PolicyWeights, template, rng, FLIPS), [col, ev], oob=False)
         put(t.weights, bad_w, [col, ev], oob=True)
         # stats -> api (a made-up service name, absurd skills, non-finite scalars)
         cstats = codec.decode(pb.Stats, captured[t.collector_stats("c0")])
-        put(t.collector_stats("c0"), _flipped(pb.Stats, captured[t.collector_stats("c0")], rng,
-                                              FLIPS), [api], oob=False)
+        put(
+            t.collector_stats("c0"),
+            _flipped(pb.Stats, captured[t.collector_stats("c0")], rng, FLIPS),
+            [api],
+            oob=False,
+        )
         bad_stats = []
         m = pb.Stats()
         m.CopyFrom(cstats)
@@ -192,27 +251,40 @@ def test_corrupted_messages_on_every_key_are_counted_and_never_accepted(tmp_path
             assert all(r.ok is None for r in replies)
         sent_int[rep_] += FLIPS
         for skill in ([1e27, 0.0], [np.nan, 0.0], [3.5, 0.0]):
-            ereq = pb.EvaluateRequest(header=codec.header(st.run_id, "api/main"),
-                                      skill=codec.to_array(np.asarray(skill, np.float32)),
-                                      steps=10)
+            ereq = pb.EvaluateRequest(
+                header=codec.header(st.run_id, "api/main"),
+                skill=codec.to_array(np.asarray(skill, np.float32)),
+                steps=10,
+            )
             replies = list(session.get(t.evaluate, payload=_reframed(ereq), timeout=10.0))
-            back = [codec.decode(pb.EvaluateReply, r.ok.payload.to_bytes()) for r in replies
-                    if r.ok is not None]
+            back = [
+                codec.decode(pb.EvaluateReply, r.ok.payload.to_bytes())
+                for r in replies
+                if r.ok is not None
+            ]
             assert back and all(b.error for b in back), back
         sent_oob[ev] += 3
 
         def counted() -> bool:
-            return all(scal(*c, "dropped/integrity") - before[c][0] >= sent_int[c]
-                       and scal(*c, "dropped/out_of_bounds") - before[c][1] >= sent_oob[c]
-                       for c in consumers)
+            return all(
+                scal(*c, "dropped/integrity") - before[c][0] >= sent_int[c]
+                and scal(*c, "dropped/out_of_bounds") - before[c][1] >= sent_oob[c]
+                for c in consumers
+            )
 
         try:
             wait_for(counted, 60, "every corrupted message to be counted")
         except TimeoutError:
-            got = {c: (scal(*c, "dropped/integrity") - before[c][0],
-                       scal(*c, "dropped/out_of_bounds") - before[c][1]) for c in consumers}
-            raise AssertionError(f"sent {sent_int} / {sent_oob}, counted {got}\n"
-                                 f"{st.logs()}") from None
+            got = {
+                c: (
+                    scal(*c, "dropped/integrity") - before[c][0],
+                    scal(*c, "dropped/out_of_bounds") - before[c][1],
+                )
+                for c in consumers
+            }
+            raise AssertionError(
+                f"sent {sent_int} / {sent_oob}, counted {got}\n{st.logs()}"
+            ) from None
         time.sleep(2.0)  # let later stats show anything that slipped through
         for c in consumers:  # exactly those, nothing legitimate dropped
             assert scal(*c, "dropped/integrity") - before[c][0] == sent_int[c], c
@@ -227,8 +299,10 @@ def test_corrupted_messages_on_every_key_are_counted_and_never_accepted(tmp_path
         assert "chunks/evil" not in watcher.get("learner", "main").scalars  # type: ignore[union-attr]
         assert scal("collector", "c0", "policy_version") < 10**6 > policy_before
         assert scal("repertoire", "main", "out_of_bounds") == 0  # none reached the core
-        fresh = codec.decode(pb.RepertoireSnapshot,
-                             next(iter(session.get(t.snapshot, timeout=5.0))).ok.payload.to_bytes())  # type: ignore[union-attr]
+        fresh = codec.decode(
+            pb.RepertoireSnapshot,
+            next(iter(session.get(t.snapshot, timeout=5.0))).ok.payload.to_bytes(),  # type: ignore[union-attr]
+        )
         skills = codec.from_array(fresh.skills)
         assert len(skills) >= 20 and np.isfinite(skills).all() and np.abs(skills).max() <= 1.0
         stats = httpx.get(f"http://127.0.0.1:{api_port}/stats", timeout=10).json()
@@ -246,8 +320,8 @@ def test_corrupted_messages_on_every_key_are_counted_and_never_accepted(tmp_path
         assert len(zs) and np.abs(zs).max() <= 1.0
         watcher.close()
         session.close()
-        for name, p in st.procs.items():
-            assert p.alive(), f"{name} died\n{st.logs()}"
+        for name, proc in st.procs.items():
+            assert proc.alive(), f"{name} died\n{st.logs()}"
 
 
 def _session(ep: str, creds: secrets.Credentials | None) -> zenoh.Session:
@@ -260,12 +334,30 @@ def _session(ep: str, creds: secrets.Credentials | None) -> zenoh.Session:
 def test_authentication_and_access_rules_on_the_router(tmp_path: Path) -> None:
     with running_stack(tmp_path) as st:
         st.procs["router"] = p = __import__("tests.stack", fromlist=["Proc"]).Proc(
-            "router", ["-m", "services.router", "--listen", st.endpoint, "--auth", "on",
-                       "--run.run-id", st.run_id, "--run.root", str(st.runs)], tmp_path / "logs")
+            "router",
+            [
+                "-m",
+                "services.router",
+                "--listen",
+                st.endpoint,
+                "--auth",
+                "on",
+                "--run.run-id",
+                st.run_id,
+                "--run.root",
+                str(st.runs),
+            ],
+            tmp_path / "logs",
+        )
         wait_port(st.port)
         d = st.run_dir / "secrets"
-        assert {f.name for f in d.iterdir()} >= {"bus.key", "users", "learner.cred",
-                                                  "collector.cred", "repertoire.cred"}
+        assert {f.name for f in d.iterdir()} >= {
+            "bus.key",
+            "users",
+            "learner.cred",
+            "collector.cred",
+            "repertoire.cred",
+        }
         assert all((f.stat().st_mode & 0o077) == 0 for f in d.iterdir())
         cred = {r: secrets.read_credentials(d / f"{r}.cred") for r in secrets.ROLES}
         t = st.topics
@@ -280,8 +372,9 @@ def test_authentication_and_access_rules_on_the_router(tmp_path: Path) -> None:
         repertoire = _session(st.endpoint, cred["repertoire"])
         got: list[tuple[str, bytes]] = []
         observer = _session(st.endpoint, cred["dashboard"])
-        observer.declare_subscriber(f"{t.root}/**",
-                                    lambda s: got.append((str(s.key_expr), s.payload.to_bytes())))
+        observer.declare_subscriber(
+            f"{t.root}/**", lambda s: got.append((str(s.key_expr), s.payload.to_bytes()))
+        )
         time.sleep(1.0)
         collector.put(t.weights, b"collector-weights")
         collector.put(t.snapshot, b"collector-snapshot")
@@ -292,14 +385,21 @@ def test_authentication_and_access_rules_on_the_router(tmp_path: Path) -> None:
         repertoire.put(t.snapshot, b"repertoire-snapshot")
         wait_for(lambda: len(got) >= 4, 10, "the allowed publications")
         time.sleep(1.0)
-        assert sorted(p for _, p in got) == [b"collector-chunk", b"collector-features",
-                                             b"learner-weights", b"repertoire-snapshot"]
+        assert sorted(p for _, p in got) == [
+            b"collector-chunk",
+            b"collector-features",
+            b"learner-weights",
+            b"repertoire-snapshot",
+        ]
         # a collector cannot answer weight queries either; the learner can
         collector.declare_queryable(t.weights, lambda q: q.reply(t.weights, b"evil"))
         learner.declare_queryable(t.weights, lambda q: q.reply(t.weights, b"good"))
         time.sleep(0.5)
-        answers = [r.ok.payload.to_bytes() for r in observer.get(t.weights, timeout=3.0)
-                   if r.ok is not None]
+        answers = [
+            r.ok.payload.to_bytes()
+            for r in observer.get(t.weights, timeout=3.0)
+            if r.ok is not None
+        ]
         assert answers == [b"good"]
         # the services' own path: open_session finds the role's credentials in the run dir
         from services.common.bus import open_session
@@ -328,7 +428,8 @@ def test_auth_defaults_follow_the_endpoints(tmp_path: Path) -> None:
     auth = secrets.router_auth(remote, run)  # generates them
     assert auth is not None and auth.dictionary.exists()
     assert secrets.client_credentials(remote, "learner", run) == secrets.read_credentials(
-        tmp_path / "r" / "secrets" / "learner.cred")
+        tmp_path / "r" / "secrets" / "learner.cred"
+    )
     # once a run has secrets, loopback processes of that run use them too
     assert secrets.router_auth(local, run) is not None
     assert secrets.client_credentials(local, "collector", run) is not None

@@ -49,7 +49,7 @@ def _rollout_within(env_name: str, feature: str, steps: int) -> None:
             a[0] = np.nan
         obs, _, _, _, info = env.step(a)
         bounds.check("obs", obs, d.obs)
-        bounds.check("prev_action", obs[-env.act_dim:], d.action)
+        bounds.check("prev_action", obs[-env.act_dim :], d.action)
         for name, box in d.feature_dims.items():
             bounds.check(name, info["features"][name], box)
         bounds.check("features", info["features"][cfg.feature_input_key], d.features)

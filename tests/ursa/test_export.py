@@ -58,7 +58,7 @@ def test_onnx_step_matches_torch_and_numpy(env: str, preset_name: str) -> None:
     for t in range(25):
         obs = (rng.normal(size=(b, pol.obs_dim)) * 2.0).astype(np.float32)
         u = rng.random((b, p.stoch), dtype=np.float32)
-        eps = (rng.normal(size=(b, pol.act_dim)) if t % 2 else np.zeros((b, pol.act_dim)))
+        eps = rng.normal(size=(b, pol.act_dim)) if t % 2 else np.zeros((b, pol.act_dim))
         eps = eps.astype(np.float32)
         out = ort.step(obs=obs, h=h, z=z, prev_action=a, skill=skill, u=u, eps=eps)
         assert set(out) == set(OUTPUTS)
@@ -69,8 +69,13 @@ def test_onnx_step_matches_torch_and_numpy(env: str, preset_name: str) -> None:
             tz = torch.from_numpy(policy_np.sample_onehot(probs.numpy(), u)).flatten(-2)
             mean, std = pol.actor(torch.cat([th, tz], -1), torch.from_numpy(skill))
             ta = torch.tanh(mean + std * torch.from_numpy(eps))
-        for name, ref in (("h_next", th), ("z_next", tz), ("mean", mean), ("std", std),
-                          ("action", ta)):
+        for name, ref in (
+            ("h_next", th),
+            ("z_next", tz),
+            ("mean", mean),
+            ("std", std),
+            ("action", ta),
+        ):
             err = float(np.abs(out[name] - ref.numpy()).max())
             worst = max(worst, err)
             assert err <= 1e-5, (t, name, err)
@@ -100,8 +105,15 @@ def test_policy_act_equals_the_onnx_rollout() -> None:
         obs = rng.normal(size=pol.obs_dim).astype(np.float32)
         act, carry = pol.act(carry, obs, skill, explore=False)
         u = latent.random(pol.params.stoch, dtype=np.float32)
-        out = ort.step(obs=obs[None], h=h, z=z, prev_action=a, skill=skill[None], u=u[None],
-                       eps=np.zeros((1, pol.act_dim), np.float32))
+        out = ort.step(
+            obs=obs[None],
+            h=h,
+            z=z,
+            prev_action=a,
+            skill=skill[None],
+            u=u[None],
+            eps=np.zeros((1, pol.act_dim), np.float32),
+        )
         np.testing.assert_allclose(out["action"][0], act, atol=1e-5)
         h, z, a = out["h_next"], out["z_next"], out["action"]
         np.testing.assert_allclose(h, carry.h, atol=1e-5)
@@ -112,7 +124,8 @@ def test_export_command_writes_model_and_interface(tmp_path: Path) -> None:
     run = tmp_path / "run1"
     (run / "config").mkdir(parents=True)
     (run / "config" / "learner.yaml").write_text(
-        yaml.safe_dump({"argv": [], "config": {"core": to_plain(cfg)}}))
+        yaml.safe_dump({"argv": [], "config": {"core": to_plain(cfg)}})
+    )
     (run / "checkpoints").mkdir()
     learner.save_checkpoint(run / "checkpoints" / "learner.pt")
     rep = Repertoire(cfg.repertoire)  # type: ignore[attr-defined]
@@ -133,17 +146,20 @@ def test_export_command_writes_model_and_interface(tmp_path: Path) -> None:
     import onnxruntime as ort
 
     sess = ort.InferenceSession(str(model_path), providers=["CPUExecutionProvider"])
-    feed = {"obs": np.zeros((1, pol.obs_dim), np.float32),
-            "h": np.asarray([info["initial_state"]["h"]], np.float32),
-            "z": np.asarray([info["initial_state"]["z"]], np.float32),
-            "prev_action": np.zeros((1, pol.act_dim), np.float32),
-            "skill": np.asarray([info["skill"]], np.float32),
-            "u": np.full((1, info["latent"]["stoch"]), 0.5, np.float32),
-            "eps": np.zeros((1, pol.act_dim), np.float32)}
+    feed = {
+        "obs": np.zeros((1, pol.obs_dim), np.float32),
+        "h": np.asarray([info["initial_state"]["h"]], np.float32),
+        "z": np.asarray([info["initial_state"]["z"]], np.float32),
+        "prev_action": np.zeros((1, pol.act_dim), np.float32),
+        "skill": np.asarray([info["skill"]], np.float32),
+        "u": np.full((1, info["latent"]["stoch"]), 0.5, np.float32),
+        "eps": np.zeros((1, pol.act_dim), np.float32),
+    }
     action = sess.run(["action"], feed)[0]
     ref = load_run(run).require_policy().params  # the checkpoint's weights
-    hn, zn = policy_np.filter_step(ref.h_init, ref.z_init, np.zeros(pol.act_dim, np.float32),
-                                   feed["obs"][0], feed["u"][0], ref)
+    hn, zn = policy_np.filter_step(
+        ref.h_init, ref.z_init, np.zeros(pol.act_dim, np.float32), feed["obs"][0], feed["u"][0], ref
+    )
     mean, _ = policy_np.actor_dist(hn, zn, feed["skill"][0], ref)
     np.testing.assert_allclose(action[0], np.tanh(mean), atol=1e-5)
 

@@ -116,13 +116,15 @@ def coverage_specs(cfg: Config, bins: int) -> tuple[str, list[GridSpec]]:
         specs = []
         for leg_i, leg in enumerate(LEGS):
             for part_i, part in enumerate(JOINT_TYPES):
-                specs.append(GridSpec(
-                    name=f"{leg} {part}",
-                    dims=(3 * leg_i + part_i,),
-                    low=(float(cfg.a1.joint_low[part_i]),),
-                    high=(float(cfg.a1.joint_high[part_i]),),
-                    bins=(bins,),
-                ))
+                specs.append(
+                    GridSpec(
+                        name=f"{leg} {part}",
+                        dims=(3 * leg_i + part_i,),
+                        low=(float(cfg.a1.joint_low[part_i]),),
+                        high=(float(cfg.a1.joint_high[part_i]),),
+                        bins=(bins,),
+                    )
+                )
         return "vae_input", specs
     if cfg.env == "point":
         return "position", [GridSpec("position", (0, 1), (-1.0, -1.0), (1.0, 1.0), (bins, bins))]

@@ -133,8 +133,11 @@ def compute_curves(
 
     win = max(float(steps[-1]) / 25.0, 1.0) if window is None else float(window)
     unsafe = total("unsafe_total", times)
-    idx, rate = (windowed_rate(unsafe, steps, win) if unsafe is not None
-                 else (np.zeros(0, np.int64), np.zeros(0)))
+    idx, rate = (
+        windowed_rate(unsafe, steps, win)
+        if unsafe is not None
+        else (np.zeros(0, np.int64), np.zeros(0))
+    )
     if len(idx):
         put("violation_rate", times[idx], rate)
     else:
@@ -150,8 +153,11 @@ def compute_curves(
     if rets:
         put("return", times, np.mean([np.interp(times, t, v) for t, v in rets], 0))
     reps = series.get("repertoire", {})
-    for key, name in (("size", "repertoire_size"), ("delta", "delta"),
-                      ("entropy_bound", "entropy_bound")):
+    for key, name in (
+        ("size", "repertoire_size"),
+        ("delta", "delta"),
+        ("entropy_bound", "entropy_bound"),
+    ):
         for s in reps.values():  # one repertoire service per run
             if key in s:
                 t, v = s[key].arrays()

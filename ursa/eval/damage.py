@@ -68,18 +68,46 @@ def evaluate_damage(
     for sc in scenarios:
         env = run.env(seed=seed, damage="" if sc == INTACT else sc, rescue=rescue)
         try:
-            r = execute_skills(policy, env, skills, steps, restand=True, explore=explore,
-                               seed=seed, progress=progress, desc=f"{run.name} {sc}")
+            r = execute_skills(
+                policy,
+                env,
+                skills,
+                steps,
+                restand=True,
+                explore=explore,
+                seed=seed,
+                progress=progress,
+                desc=f"{run.name} {sc}",
+            )
         finally:
             env.close()
         if run.uses_skills:
             best = int(np.argmax(r.returns))
-            out.append(DamageTrial(label, run.name, run.mode, sc, float(r.returns[best]),
-                                   r.returns, int(ids[best]), skills[best].tolist(),
-                                   r.nonfinite_actions))
+            out.append(
+                DamageTrial(
+                    label,
+                    run.name,
+                    run.mode,
+                    sc,
+                    float(r.returns[best]),
+                    r.returns,
+                    int(ids[best]),
+                    skills[best].tolist(),
+                    r.nonfinite_actions,
+                )
+            )
         else:
-            out.append(DamageTrial(label, run.name, run.mode, sc, float(np.mean(r.returns)),
-                                   r.returns, nonfinite_actions=r.nonfinite_actions))
+            out.append(
+                DamageTrial(
+                    label,
+                    run.name,
+                    run.mode,
+                    sc,
+                    float(np.mean(r.returns)),
+                    r.returns,
+                    nonfinite_actions=r.nonfinite_actions,
+                )
+            )
     return out
 
 
@@ -105,8 +133,9 @@ def run_damage(
         for run in group:
             n = run.config.repertoire.n_z if n_skills is None else n_skills
             t = run.config.collector.skill_period if steps is None else steps
-            trials_out += evaluate_damage(run, label, scenarios, n, t, trials, rescue, seed,
-                                          explore, progress)
+            trials_out += evaluate_damage(
+                run, label, scenarios, n, t, trials, rescue, seed, explore, progress
+            )
     return trials_out
 
 
@@ -118,45 +147,67 @@ def summarize(trials: list[DamageTrial]) -> dict[str, dict[str, dict[str, float]
         for sc in dict.fromkeys(t.scenario for t in trials):
             s = np.array([t.score for t in trials if t.label == label and t.scenario == sc])
             if len(s):
-                out[label][sc] = {"median": float(np.median(s)), "min": float(s.min()),
-                                  "max": float(s.max()), "runs": float(len(s))}
+                out[label][sc] = {
+                    "median": float(np.median(s)),
+                    "min": float(s.min()),
+                    "max": float(s.max()),
+                    "runs": float(len(s)),
+                }
     return out
 
 
-def write_damage(trials: list[DamageTrial], out: Path, steps: int, n_skills: int,
-                 rescue: bool) -> dict[str, Any]:
+def write_damage(
+    trials: list[DamageTrial], out: Path, steps: int, n_skills: int, rescue: bool
+) -> dict[str, Any]:
     """damage.json, damage.csv and damage.png; returns the JSON summary."""
     stats = summarize(trials)
     summary: dict[str, Any] = {
         "figure": "Figure 5: return on the damaged robot (URSA: best of its most distinct "
-                  "skills; baseline: its policy), median and range over runs",
+        "skills; baseline: its policy), median and range over runs",
         "steps": steps,
         "skills_tried": n_skills,
         "rescue": rescue,
-        "scenarios": {s: list(DAMAGE_SCENARIOS.get(s, ())) for s in
-                      dict.fromkeys(t.scenario for t in trials)},
+        "scenarios": {
+            s: list(DAMAGE_SCENARIOS.get(s, ())) for s in dict.fromkeys(t.scenario for t in trials)
+        },
         "stats": stats,
-        "runs": [{"label": t.label, "run": t.run, "mode": t.mode, "scenario": t.scenario,
-                  "score": t.score, "returns": t.returns, "best_skill_id": t.best_skill_id,
-                  "best_skill": t.best_skill, "nonfinite_actions": t.nonfinite_actions}
-                 for t in trials],
+        "runs": [
+            {
+                "label": t.label,
+                "run": t.run,
+                "mode": t.mode,
+                "scenario": t.scenario,
+                "score": t.score,
+                "returns": t.returns,
+                "best_skill_id": t.best_skill_id,
+                "best_skill": t.best_skill,
+                "nonfinite_actions": t.nonfinite_actions,
+            }
+            for t in trials
+        ],
     }
     if "ursa" in stats and "baseline" in stats:
         summary["ursa_better"] = {
             sc: stats["ursa"][sc]["median"] > stats["baseline"][sc]["median"]
-            for sc in stats["ursa"] if sc in stats["baseline"]
+            for sc in stats["ursa"]
+            if sc in stats["baseline"]
         }
     write_json(out / "damage.json", summary)
-    write_csv(out / "damage.csv",
-              ["label", "run", "mode", "scenario", "score", "best_skill_id", "n_trials"],
-              [[t.label, t.run, t.mode, t.scenario, t.score, t.best_skill_id, len(t.returns)]
-               for t in trials])
+    write_csv(
+        out / "damage.csv",
+        ["label", "run", "mode", "scenario", "score", "best_skill_id", "n_trials"],
+        [
+            [t.label, t.run, t.mode, t.scenario, t.score, t.best_skill_id, len(t.returns)]
+            for t in trials
+        ],
+    )
     _plot(trials, stats, out / "damage.png")
     return summary
 
 
-def _plot(trials: list[DamageTrial], stats: dict[str, dict[str, dict[str, float]]],
-          path: Path) -> None:
+def _plot(
+    trials: list[DamageTrial], stats: dict[str, dict[str, dict[str, float]]], path: Path
+) -> None:
     plt = pyplot()
     scenarios = list(dict.fromkeys(t.scenario for t in trials))
     labels = list(stats)
@@ -171,8 +222,7 @@ def _plot(trials: list[DamageTrial], stats: dict[str, dict[str, dict[str, float]
         hi = np.array([st[s]["max"] if s in st else np.nan for s in scenarios])
         pos = x + (j - (len(labels) - 1) / 2) * width
         mode = next((t.mode for t in trials if t.label == label), label)
-        ax.bar(pos, med, width * 0.9, color=colors.get(label), alpha=0.8,
-               label=f"{label} ({mode})")
+        ax.bar(pos, med, width * 0.9, color=colors.get(label), alpha=0.8, label=f"{label} ({mode})")
         ax.errorbar(pos, med, yerr=[med - lo, hi - med], fmt="none", ecolor="k", capsize=3)
         for i, sc in enumerate(scenarios):
             pts = [t.score for t in trials if t.label == label and t.scenario == sc]

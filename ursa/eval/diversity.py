@@ -55,8 +55,11 @@ class DiversityRun:
         if r.achieved is not None and rep is not None and len(rep) > 1:
             dist = skill_distance(r.achieved, r.skills, rep.cov)
             delta = rep.delta()
-            out.update(delta=delta, distance_median=float(np.median(dist)),
-                       within_delta_fraction=float(np.mean(dist <= delta)))
+            out.update(
+                delta=delta,
+                distance_median=float(np.median(dist)),
+                within_delta_fraction=float(np.mean(dist <= delta)),
+            )
         return out
 
 
@@ -85,9 +88,16 @@ def execute_for_coverage(
     env = run.env(seed=seed)
     try:
         rollouts = execute_skills(
-            policy, env, skills, steps, record=(key,),
+            policy,
+            env,
+            skills,
+            steps,
+            record=(key,),
             phi_key=cfg.feature_input_key if run.uses_skills else None,
-            settle=settle, explore=explore, seed=seed, progress=progress,
+            settle=settle,
+            explore=explore,
+            seed=seed,
+            progress=progress,
             desc=f"diversity {label}",
         )
     finally:
@@ -115,8 +125,20 @@ def run_diversity(
     if baseline is not None:
         if baseline.config.env != run.config.env:
             raise ValueError("the baseline must run on the same env")
-        out.append(execute_for_coverage(baseline, "baseline", n, t, bins, settle,
-                                        len(main.rollouts.skills), seed, explore, progress))
+        out.append(
+            execute_for_coverage(
+                baseline,
+                "baseline",
+                n,
+                t,
+                bins,
+                settle,
+                len(main.rollouts.skills),
+                seed,
+                explore,
+                progress,
+            )
+        )
     return out
 
 
@@ -130,8 +152,10 @@ def write_diversity(results: list[DiversityRun], out: Path, bins: int) -> dict[s
         "bins": bins,
         "steps": first.rollouts.steps,
         "settle": first.rollouts.settle,
-        "grids": [{"name": s.name, "dims": s.dims, "low": s.low, "high": s.high, "bins": s.bins}
-                  for s in first.coverage.specs],
+        "grids": [
+            {"name": s.name, "dims": s.dims, "low": s.low, "high": s.high, "bins": s.bins}
+            for s in first.coverage.specs
+        ],
         "runs": {r.label: r.summary() for r in results},
     }
     if len(results) > 1:
@@ -144,12 +168,29 @@ def write_diversity(results: list[DiversityRun], out: Path, bins: int) -> dict[s
         m = r.rollouts.means[r.key]
         for i in range(len(m)):
             skill = r.rollouts.skills[i]
-            rows.append([r.label, r.run.name, i, int(r.skill_ids[i]),
-                         " ".join(f"{v:.6g}" for v in skill),
-                         *m[i].tolist(), r.rollouts.returns[i], r.rollouts.violation_rate[i]])
+            rows.append(
+                [
+                    r.label,
+                    r.run.name,
+                    i,
+                    int(r.skill_ids[i]),
+                    " ".join(f"{v:.6g}" for v in skill),
+                    *m[i].tolist(),
+                    r.rollouts.returns[i],
+                    r.rollouts.violation_rate[i],
+                ]
+            )
     dim = first.rollouts.means[first.key].shape[1]
-    header = ["label", "run", "index", "skill_id", "skill",
-              *[f"mean_{first.key}_{j}" for j in range(dim)], "return", "violation_rate"]
+    header = [
+        "label",
+        "run",
+        "index",
+        "skill_id",
+        "skill",
+        *[f"mean_{first.key}_{j}" for j in range(dim)],
+        "return",
+        "violation_rate",
+    ]
     write_csv(out / "diversity_means.csv", header, rows)
 
     for r in results:
@@ -166,8 +207,13 @@ def _plot(results: list[DiversityRun], path: Path) -> None:
     plt = pyplot()
     env = results[0].run.config.env
     if env == "a1":
-        fig, axes = plt.subplots(len(results), 3, figsize=(13, 2.4 * len(results) + 0.8),
-                                 squeeze=False, constrained_layout=True)
+        fig, axes = plt.subplots(
+            len(results),
+            3,
+            figsize=(13, 2.4 * len(results) + 0.8),
+            squeeze=False,
+            constrained_layout=True,
+        )
         for row, r in enumerate(results):
             for j, part in enumerate(JOINT_TYPES):
                 ax = axes[row][j]
@@ -175,29 +221,49 @@ def _plot(results: list[DiversityRun], path: Path) -> None:
                 grid = np.stack([r.coverage.counts[r.coverage.specs.index(s)] for s in specs])
                 lo, hi = specs[0].low[0], specs[0].high[0]
                 shown = np.where(grid > 0, np.log1p(grid), np.nan)
-                ax.imshow(shown, aspect="auto", cmap="viridis", origin="upper",
-                          extent=(lo, hi, len(LEGS) - 0.5, -0.5), interpolation="nearest")
+                ax.imshow(
+                    shown,
+                    aspect="auto",
+                    cmap="viridis",
+                    origin="upper",
+                    extent=(lo, hi, len(LEGS) - 0.5, -0.5),
+                    interpolation="nearest",
+                )
                 ax.set_facecolor("#f2f2f2")
                 ax.set_yticks(range(len(LEGS)), LEGS)
                 n_cov = int(np.count_nonzero(grid))
-                ax.set_title(f"{r.label} ({r.run.mode}): {part}, {n_cov}/{grid.size} cells",
-                             fontsize=9)
+                ax.set_title(
+                    f"{r.label} ({r.run.mode}): {part}, {n_cov}/{grid.size} cells", fontsize=9
+                )
                 if row == len(results) - 1:
                     ax.set_xlabel("mean joint angle (rad)")
     else:
-        fig, axes = plt.subplots(1, len(results), figsize=(4.2 * len(results), 4.2),
-                                 squeeze=False, constrained_layout=True)
+        fig, axes = plt.subplots(
+            1,
+            len(results),
+            figsize=(4.2 * len(results), 4.2),
+            squeeze=False,
+            constrained_layout=True,
+        )
         for j, r in enumerate(results):
             ax = axes[0][j]
             spec, grid = r.coverage.specs[0], r.coverage.counts[0]
             shown = np.where(grid > 0, np.log1p(grid), np.nan).T
-            ax.imshow(shown, origin="lower", cmap="viridis", interpolation="nearest",
-                      extent=(spec.low[0], spec.high[0], spec.low[1], spec.high[1]))
+            ax.imshow(
+                shown,
+                origin="lower",
+                cmap="viridis",
+                interpolation="nearest",
+                extent=(spec.low[0], spec.high[0], spec.low[1], spec.high[1]),
+            )
             ax.set_facecolor("#f2f2f2")
-            ax.set_title(f"{r.label} ({r.run.mode}): {r.coverage.covered}/{r.coverage.total} cells",
-                         fontsize=9)
+            ax.set_title(
+                f"{r.label} ({r.run.mode}): {r.coverage.covered}/{r.coverage.total} cells",
+                fontsize=9,
+            )
             ax.set_xlabel("mean x")
             ax.set_ylabel("mean y")
-    fig.suptitle("Coverage of the skills' mean features (colour: log(1 + skills per cell))",
-                 fontsize=10)
+    fig.suptitle(
+        "Coverage of the skills' mean features (colour: log(1 + skills per cell))", fontsize=10
+    )
     save_figure(fig, path)

@@ -88,8 +88,17 @@ def run_embedding(
     t = cfg.collector.skill_period if steps is None else steps
     env = run.env(seed=seed)
     try:
-        r = execute_skills(policy, env, skills, t, keep_obs=True, explore=explore, seed=seed,
-                           progress=progress, desc="embedding")
+        r = execute_skills(
+            policy,
+            env,
+            skills,
+            t,
+            keep_obs=True,
+            explore=explore,
+            seed=seed,
+            progress=progress,
+            desc="embedding",
+        )
     finally:
         env.close()
     assert r.obs is not None
@@ -97,16 +106,26 @@ def run_embedding(
     return r, emb, ids
 
 
-def write_embedding(run: LoadedRun, r: Rollouts, emb: Embedding, ids: np.ndarray,
-                    out: Path) -> dict[str, Any]:
+def write_embedding(
+    run: LoadedRun, r: Rollouts, emb: Embedding, ids: np.ndarray, out: Path
+) -> dict[str, Any]:
     """embedding.json, embedding.csv and embedding.png; returns the JSON summary."""
     assert r.obs is not None
     k, t = r.obs.shape[:2]
     pts = emb.points.reshape(k, t, 2)
     centroids = pts.mean(1)
     spread = float(np.mean(np.linalg.norm(pts - centroids[:, None], axis=-1)))
-    between = (float(np.mean(np.linalg.norm(centroids[:, None] - centroids[None], axis=-1)
-                             [~np.eye(k, dtype=bool)])) if k > 1 else 0.0)
+    between = (
+        float(
+            np.mean(
+                np.linalg.norm(centroids[:, None] - centroids[None], axis=-1)[
+                    ~np.eye(k, dtype=bool)
+                ]
+            )
+        )
+        if k > 1
+        else 0.0
+    )
     summary: dict[str, Any] = {
         "figure": "Figure 1: 2-D embedding of state trajectories, coloured by skill",
         "run": run.name,
@@ -134,11 +153,17 @@ def write_embedding(run: LoadedRun, r: Rollouts, emb: Embedding, ids: np.ndarray
     for i in range(k):
         color = cmap(i % 10) if k <= 10 else cmap(i / max(k - 1, 1))
         ax.plot(pts[i, :, 0], pts[i, :, 1], "-", lw=0.5, color=color, alpha=0.5)
-        ax.scatter(pts[i, :, 0], pts[i, :, 1], s=4, color=color, alpha=0.7,
-                   label=f"skill {int(ids[i])}" if k <= 10 else None)
+        ax.scatter(
+            pts[i, :, 0],
+            pts[i, :, 1],
+            s=4,
+            color=color,
+            alpha=0.7,
+            label=f"skill {int(ids[i])}" if k <= 10 else None,
+        )
     if k <= 10:
         ax.legend(fontsize=7, markerscale=2)
-    var = (f" ({100 * sum(emb.explained):.0f}% of the variance)" if emb.explained else "")
+    var = f" ({100 * sum(emb.explained):.0f}% of the variance)" if emb.explained else ""
     ax.set_title(f"{emb.method.upper()} of the observations{var}, {run.mode}", fontsize=10)
     ax.set_xlabel(f"{emb.method} 1")
     ax.set_ylabel(f"{emb.method} 2")

@@ -267,8 +267,13 @@ def load_run(path: str | os.PathLike[str], seed: int = 0) -> LoadedRun:
     extra: dict[str, Any] = {}
     if run_dir is not None and (run_dir / ARCHIVE).exists():
         repertoire = Repertoire.load(run_dir / ARCHIVE, bounds.declared(cfg).skills)
-        if (policy is not None and policy.vae is not None and repertoire.config.input_dim
-                and repertoire.encoder_version != policy.vae_version and len(repertoire)):
+        if (
+            policy is not None
+            and policy.vae is not None
+            and repertoire.config.input_dim
+            and repertoire.encoder_version != policy.vae_version
+            and len(repertoire)
+        ):
             # the archive and the checkpoint are saved at different times: put the skills in
             # the space of the policy's encoder, the one its skill input was trained with
             extra["reencoded_from"] = repertoire.encoder_version
@@ -341,9 +346,12 @@ def make_serial_loop(
     cfg: Config, prefill: int = 2000, seed: int = 0, env_seed: int = 0, **overrides: Any
 ) -> SerialLoop:
     """A :class:`SerialLoop` on ``build_env(cfg)`` with the settings of ``cfg``."""
-    return SerialLoop(build_env(cfg, seed=env_seed), cfg.learner,
-                      serial_config(cfg, prefill, seed, **overrides),
-                      skill_box=bounds.declared(cfg).skills)
+    return SerialLoop(
+        build_env(cfg, seed=env_seed),
+        cfg.learner,
+        serial_config(cfg, prefill, seed, **overrides),
+        skill_box=bounds.declared(cfg).skills,
+    )
 
 
 class _RewardTap:
@@ -391,19 +399,44 @@ class SerialRecorder:
         ret = tap.reward_sum / max(tap.reward_steps, 1) * loop.config.skill_period
         tap.reward_sum, tap.reward_steps = 0.0, 0
         rescues = int(getattr(tap.inner, "rescues", 0))
-        self.rows.append(_row(now, "collector", "serial", {
-            "steps": loop.env_steps, "violation_rate": viol, "rescues": rescues,
-            "return_mean": ret, "unsafe_total": loop.unsafe_steps,
-            "policy_version": loop.policy.version}))
+        self.rows.append(
+            _row(
+                now,
+                "collector",
+                "serial",
+                {
+                    "steps": loop.env_steps,
+                    "violation_rate": viol,
+                    "rescues": rescues,
+                    "return_mean": ret,
+                    "unsafe_total": loop.unsafe_steps,
+                    "policy_version": loop.policy.version,
+                },
+            )
+        )
         rep = loop.repertoire
         if rep is not None and len(rep) > 1:
-            self.rows.append(_row(now, "repertoire", "serial", {
-                "size": len(rep), "capacity": rep.config.size, "delta": rep.delta(),
-                "entropy_bound": rep.entropy_bound(), "commits": rep.commits,
-                "accepted": rep.accepted, "rejected": rep.rejected}))
-        scalars: dict[str, float] = {"updates": loop.learner.updates,
-                                     "replay_steps": len(loop.replay)}
-        for m in loop.history[self._history:][-1:]:
+            self.rows.append(
+                _row(
+                    now,
+                    "repertoire",
+                    "serial",
+                    {
+                        "size": len(rep),
+                        "capacity": rep.config.size,
+                        "delta": rep.delta(),
+                        "entropy_bound": rep.entropy_bound(),
+                        "commits": rep.commits,
+                        "accepted": rep.accepted,
+                        "rejected": rep.rejected,
+                    },
+                )
+            )
+        scalars: dict[str, float] = {
+            "updates": loop.learner.updates,
+            "replay_steps": len(loop.replay),
+        }
+        for m in loop.history[self._history :][-1:]:
             scalars.update({k: v for k, v in m.items() if np.isfinite(v)})
         self.rows.append(_row(now, "learner", "serial", scalars))
         self._steps, self._unsafe = loop.env_steps, loop.unsafe_steps
@@ -411,8 +444,13 @@ class SerialRecorder:
 
 
 def _row(t: float, service: str, sid: str, scalars: dict[str, Any]) -> dict[str, Any]:
-    return {"t": t, "service": service, "id": sid,
-            "scalars": {k: float(v) for k, v in scalars.items()}, "labels": {}}
+    return {
+        "t": t,
+        "service": service,
+        "id": sid,
+        "scalars": {k: float(v) for k, v in scalars.items()},
+        "labels": {},
+    }
 
 
 def save_serial_run(
@@ -428,9 +466,12 @@ def save_serial_run(
     doc = {"argv": [], "config": {"core": to_plain(cfg), "serial": to_plain(loop.config)}}
     _atomic_write(run / "config" / "serial.yaml", yaml.safe_dump(doc, sort_keys=False))
     loop.learner.save_checkpoint(run / CHECKPOINT)
-    state = {"samples": loop.learner.updates * cfg.learner.batch_size * cfg.learner.seq_len,
-             "weights_version": loop.policy.version, "updates": loop.learner.updates,
-             "stamp": time.time()}
+    state = {
+        "samples": loop.learner.updates * cfg.learner.batch_size * cfg.learner.seq_len,
+        "weights_version": loop.policy.version,
+        "updates": loop.learner.updates,
+        "stamp": time.time(),
+    }
     _atomic_write(run / CHECKPOINT.parent / "learner_state.json", json.dumps(state))
     if loop.repertoire is not None:
         loop.repertoire.save(run / ARCHIVE)

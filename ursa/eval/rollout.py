@@ -165,8 +165,9 @@ def execute_skills(
                 if policy is None or carry is None:
                     action = rng.uniform(-1.0, 1.0, env.act_dim)
                 else:
-                    action, carry = policy.act(carry, obs, z if len(z) else None,
-                                               explore=explore, rng=rng)
+                    action, carry = policy.act(
+                        carry, obs, z if len(z) else None, explore=explore, rng=rng
+                    )
                 nonfinite += 0 if np.all(np.isfinite(action)) else 1
                 obs, reward, _, _, info = env.step(action)
                 returns[i] += float(reward)

@@ -78,7 +78,8 @@ def run_velocity(
         raise ValueError(
             "the velocity evaluation needs a run with a provided 2-D feature function "
             f"(--core.feature velocity, mode ursa-supervised); this run has feature "
-            f"{cfg.feature!r}, mode {cfg.learner.mode!r}")
+            f"{cfg.feature!r}, mode {cfg.learner.mode!r}"
+        )
     policy = run.require_policy()
     rep = run.require_repertoire()
     t = cfg.collector.skill_period if steps is None else steps
@@ -87,9 +88,20 @@ def run_velocity(
     targets = np.array([[axes[0][i], axes[1][j]] for i, j in order])
     env = run.env(seed=seed)
     try:
-        r = execute_skills(policy, env, targets, t, record=(cfg.feature,), phi_key=cfg.feature,
-                           tracking=True, settle=settle, explore=explore, seed=seed,
-                           progress=progress, desc="velocity targets")
+        r = execute_skills(
+            policy,
+            env,
+            targets,
+            t,
+            record=(cfg.feature,),
+            phi_key=cfg.feature,
+            tracking=True,
+            settle=settle,
+            explore=explore,
+            seed=seed,
+            progress=progress,
+            desc="velocity targets",
+        )
     finally:
         env.close()
     shape = (grid, grid, 2)
@@ -100,8 +112,9 @@ def run_velocity(
         ach[i, j] = mean[k]
         err[i, j] = np.abs(mean[k] - targets[k])
         serr[i, j] = r.abs_error[cfg.feature][k]
-    return VelocityResult(run, axes, tg, ach, err, serr, r, feature_names(cfg.feature, 2), margin,
-                          quantile)
+    return VelocityResult(
+        run, axes, tg, ach, err, serr, r, feature_names(cfg.feature, 2), margin, quantile
+    )
 
 
 def write_velocity(res: VelocityResult, out: Path) -> dict[str, Any]:
@@ -109,7 +122,7 @@ def write_velocity(res: VelocityResult, out: Path) -> dict[str, Any]:
     names = res.names
     summary: dict[str, Any] = {
         "figure": "Figure 6: tracking error of each feature dimension over a grid of targets "
-                  "covering the repertoire's bounding box",
+        "covering the repertoire's bounding box",
         "run": res.run.name,
         "feature": res.run.config.feature,
         "dims": names,
@@ -132,11 +145,23 @@ def write_velocity(res: VelocityResult, out: Path) -> dict[str, Any]:
     g = len(res.axes[0])
     for i in range(g):
         for j in range(g):
-            rows.append([*res.targets[i, j], *res.achieved[i, j], *res.error[i, j],
-                         *res.step_error[i, j]])
-    write_csv(out / "velocity.csv",
-              ["target_0", "target_1", "achieved_0", "achieved_1", "error_0", "error_1",
-               "step_error_0", "step_error_1"], rows)
+            rows.append(
+                [*res.targets[i, j], *res.achieved[i, j], *res.error[i, j], *res.step_error[i, j]]
+            )
+    write_csv(
+        out / "velocity.csv",
+        [
+            "target_0",
+            "target_1",
+            "achieved_0",
+            "achieved_1",
+            "error_0",
+            "error_1",
+            "step_error_0",
+            "step_error_1",
+        ],
+        rows,
+    )
     _plot(res, out / "velocity.png")
     return summary
 
@@ -150,13 +175,21 @@ def _plot(res: VelocityResult, path: Path) -> None:
     extent = (a0[0] - d0, a0[-1] + d0, a1[0] - d1, a1[-1] + d1)
     skills = res.run.require_repertoire().skills
     for k, ax in enumerate(axs):
-        im = ax.imshow(res.error[:, :, k].T, origin="lower", extent=extent, aspect="auto",
-                       cmap="magma_r", interpolation="nearest", vmin=0.0)
+        im = ax.imshow(
+            res.error[:, :, k].T,
+            origin="lower",
+            extent=extent,
+            aspect="auto",
+            cmap="magma_r",
+            interpolation="nearest",
+            vmin=0.0,
+        )
         ax.scatter(skills[:, 0], skills[:, 1], s=2, c="cyan", alpha=0.3, label="repertoire")
         ax.set_xlabel(f"target {res.names[0]}")
         ax.set_ylabel(f"target {res.names[1]}")
-        ax.set_title(f"|error| of {res.names[k]} (mean {res.error[:, :, k].mean():.3g})",
-                     fontsize=9)
+        ax.set_title(
+            f"|error| of {res.names[k]} (mean {res.error[:, :, k].mean():.3g})", fontsize=9
+        )
         ax.set_xlim(extent[0], extent[1])
         ax.set_ylim(extent[2], extent[3])
         fig.colorbar(im, ax=ax)

@@ -30,12 +30,36 @@ NAMED_GROUPS: dict[str, str] = {
     "accepted_per_s": "commits/s",
     "rejected_per_s": "commits/s",
 }
-PALETTE = ("#1f77b4", "#ff7f0e", "#2ca02c", "#d62728", "#9467bd", "#8c564b", "#e377c2",
-           "#7f7f7f", "#bcbd22", "#17becf")
+PALETTE = (
+    "#1f77b4",
+    "#ff7f0e",
+    "#2ca02c",
+    "#d62728",
+    "#9467bd",
+    "#8c564b",
+    "#e377c2",
+    "#7f7f7f",
+    "#bcbd22",
+    "#17becf",
+)
 SERVICE_ORDER = ("collector", "learner", "repertoire", "evaluator", "dashboard", "api")
-PRIORITY = ("violation_rate", "rescues", "return_mean", "steps_per_s", "loss", "λ1 / λ2 mean",
-            "delta_mean", "entropy_bound", "replay_steps", "policy_version", "policy_lag",
-            "size", "δ", "entropy bound", "commits/s")
+PRIORITY = (
+    "violation_rate",
+    "rescues",
+    "return_mean",
+    "steps_per_s",
+    "loss",
+    "λ1 / λ2 mean",
+    "delta_mean",
+    "entropy_bound",
+    "replay_steps",
+    "policy_version",
+    "policy_lag",
+    "size",
+    "δ",
+    "entropy bound",
+    "commits/s",
+)
 """Plots shown first, in this order (by title); the others follow alphabetically."""
 
 PlotKey = tuple[str, str]
@@ -44,8 +68,9 @@ SeriesKey = tuple[str, str, str]
 """(service, id, scalar key), as in ``LiveState.series``."""
 
 
-def plot_layout(keys: list[SeriesKey], max_plots: int = 80) -> dict[PlotKey, list[tuple[str,
-                                                                                     SeriesKey]]]:
+def plot_layout(
+    keys: list[SeriesKey], max_plots: int = 80
+) -> dict[PlotKey, list[tuple[str, SeriesKey]]]:
     """Group series into plots: (service, title) -> [(line label, series key)], sorted."""
     plots: dict[PlotKey, list[tuple[str, SeriesKey]]] = defaultdict(list)
     ids_of: dict[str, set[str]] = defaultdict(set)
@@ -67,6 +92,7 @@ def plot_layout(keys: list[SeriesKey], max_plots: int = 80) -> dict[PlotKey, lis
         if len(ids_of[svc]) > 1:
             label = f"{sid}:{label}"
         plots[(svc, title)].append((label, key))
+
     def rank(pk: PlotKey) -> tuple[int, int, str]:
         svc, title = pk
         s = SERVICE_ORDER.index(svc) if svc in SERVICE_ORDER else len(SERVICE_ORDER)
@@ -80,8 +106,14 @@ def plot_layout(keys: list[SeriesKey], max_plots: int = 80) -> dict[PlotKey, lis
 class PlotsPanel:
     """uPlot handles kept in sync with the series present; call ``update`` at a few Hz."""
 
-    def __init__(self, server: viser.ViserServer, container: Any = None, max_points: int = 400,
-                 max_plots: int = 80, max_lines: int = 12) -> None:
+    def __init__(
+        self,
+        server: viser.ViserServer,
+        container: Any = None,
+        max_points: int = 400,
+        max_plots: int = 80,
+        max_lines: int = 12,
+    ) -> None:
         self.server = server
         self.container = container if container is not None else contextlib.nullcontext()
         self.max_points = max_points
@@ -95,12 +127,13 @@ class PlotsPanel:
     def _folder(self, service: str) -> viser.GuiFolderHandle:
         f = self.folders.get(service)
         if f is None:
-            order = (SERVICE_ORDER.index(service) if service in SERVICE_ORDER
-                     else len(SERVICE_ORDER))
+            order = SERVICE_ORDER.index(service) if service in SERVICE_ORDER else len(SERVICE_ORDER)
             with self.container:  # plots are created later, from the page loop's thread
                 f = self.server.gui.add_folder(
-                    service, order=100 + order,
-                    expand_by_default=service in ("collector", "learner", "repertoire"))
+                    service,
+                    order=100 + order,
+                    expand_by_default=service in ("collector", "learner", "repertoire"),
+                )
             self.folders[service] = f
         return f
 
@@ -129,12 +162,19 @@ class PlotsPanel:
                     continue
                 if current is not None:
                     current[1].remove()
-                series_cfg = (viser.uplot.Series(label="time"), *(
-                    viser.uplot.Series(label=lbl, stroke=PALETTE[i % len(PALETTE)], width=1.5)
-                    for i, lbl in enumerate(labels)))
+                series_cfg = (
+                    viser.uplot.Series(label="time"),
+                    *(
+                        viser.uplot.Series(label=lbl, stroke=PALETTE[i % len(PALETTE)], width=1.5)
+                        for i, lbl in enumerate(labels)
+                    ),
+                )
                 with self._folder(pk[0]):
                     handle = self.server.gui.add_uplot(
-                        data=data, series=series_cfg, title=pk[1], aspect=1.6,
+                        data=data,
+                        series=series_cfg,
+                        title=pk[1],
+                        aspect=1.6,
                         order=float(rank[pk]),
                         legend=viser.uplot.Legend(show=True),
                     )

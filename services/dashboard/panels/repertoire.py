@@ -121,7 +121,7 @@ def pick_on_ray(
 
 
 def parse_floats(text: str) -> np.ndarray:
-    """"0.1, -2, 3e-1" -> array; raises ValueError on anything else or a non-finite value."""
+    """ "0.1, -2, 3e-1" -> array; raises ValueError on anything else or a non-finite value."""
     parts = [p for p in text.replace(";", ",").replace(" ", ",").split(",") if p]
     if not parts:
         raise ValueError("no numbers given")
@@ -158,29 +158,47 @@ class RepertoirePanel:
         self._dirty = True
 
         gui = server.gui
-        self.color_by = gui.add_dropdown("colour by", color_options(3), initial_value="age",
-                                         hint="Colour skills by their age or a coordinate")
-        self.point_size = gui.add_slider("point size", min=0.005, max=0.1, step=0.005,
-                                         initial_value=0.03)
-        self.skill_id = gui.add_number("skill id", 0, min=0, step=1,
-                                       hint="Select a skill by id (or click near it)")
+        self.color_by = gui.add_dropdown(
+            "colour by",
+            color_options(3),
+            initial_value="age",
+            hint="Colour skills by their age or a coordinate",
+        )
+        self.point_size = gui.add_slider(
+            "point size", min=0.005, max=0.1, step=0.005, initial_value=0.03
+        )
+        self.skill_id = gui.add_number(
+            "skill id", 0, min=0, step=1, hint="Select a skill by id (or click near it)"
+        )
         self.select_button = gui.add_button("select skill")
         self.z_text = gui.add_text("nearest to z", "", hint="Comma-separated coordinates")
         self.nearest_button = gui.add_button("select nearest")
         self.info = gui.add_markdown("*no skill selected: click near a point*")
 
         self.cloud = server.scene.add_point_cloud(
-            "/skills/cloud", np.zeros((1, 3), np.float32) + np.asarray(self.origin, np.float32),
-            colors=(120, 120, 120), point_size=self.point_size.value, point_shape="circle",
-            visible=False)
+            "/skills/cloud",
+            np.zeros((1, 3), np.float32) + np.asarray(self.origin, np.float32),
+            colors=(120, 120, 120),
+            point_size=self.point_size.value,
+            point_shape="circle",
+            visible=False,
+        )
         self.selected_marker = server.scene.add_icosphere(
-            "/skills/selected", radius=0.05, color=_SELECTED_COLOR, visible=False)
+            "/skills/selected", radius=0.05, color=_SELECTED_COLOR, visible=False
+        )
         self.box = server.scene.add_box(
-            "/skills/box", color=(180, 180, 180), dimensions=(2 * half_size,) * 3,
-            wireframe=True, position=np.asarray(self.origin), opacity=0.3)
+            "/skills/box",
+            color=(180, 180, 180),
+            dimensions=(2 * half_size,) * 3,
+            wireframe=True,
+            position=np.asarray(self.origin),
+            opacity=0.3,
+        )
         self.title = server.scene.add_label(
-            "/skills/title", "skill space (no data yet)",
-            position=np.asarray(self.origin) + np.array([-half_size, -half_size, half_size + 0.15]))
+            "/skills/title",
+            "skill space (no data yet)",
+            position=np.asarray(self.origin) + np.array([-half_size, -half_size, half_size + 0.15]),
+        )
 
         self.color_by.on_update(lambda _: self._mark_dirty())
         self.point_size.on_update(lambda _: self._mark_dirty())
@@ -245,9 +263,11 @@ class RepertoirePanel:
             return f"**skill {sid}** is not in the repertoire (version {snap.version})"
         z = snap.skills[row]
         coords = ", ".join(f"{x:.3f}" for x in z)
-        lines = [f"**skill {sid}**  z = ({coords})",
-                 f"age {int(snap.ages[row])} · NN distance {float(snap.nn_dist[row]):.3f} · "
-                 f"δ = {snap.delta:.3f}"]
+        lines = [
+            f"**skill {sid}**  z = ({coords})",
+            f"age {int(snap.ages[row])} · NN distance {float(snap.nn_dist[row]):.3f} · "
+            f"δ = {snap.delta:.3f}",
+        ]
         near = []
         for c in self._collectors:
             cz = c.skill
@@ -298,14 +318,17 @@ class RepertoirePanel:
             mode = "age"
         rows = np.arange(snap.size)
         if snap.size > self.max_points:  # keep the newest: they are the ones that change
-            rows = np.argsort(snap.ages)[-self.max_points:]
+            rows = np.argsort(snap.ages)[-self.max_points :]
         frame = Frame.fit(snap.skills[rows], self.origin, self.half_size)
         world = frame.world(snap.skills[rows])
         colors = colormap(color_values(snap, mode)[rows])
         with self._lock:
             self.snap, self.frame, self.shown_rows, self.world = snap, frame, rows, world
-        title = (f"skill space: {len(rows)} skills, D={snap.dim}, coloured by {mode}"
-                 if len(rows) else "skill space (repertoire empty)")
+        title = (
+            f"skill space: {len(rows)} skills, D={snap.dim}, coloured by {mode}"
+            if len(rows)
+            else "skill space (repertoire empty)"
+        )
         with self.server.atomic():
             if tuple(self.color_by.options) != opts:
                 self.color_by.options = opts
@@ -335,10 +358,11 @@ class RepertoirePanel:
                 if cid not in self._markers:
                     name = "".join(ch if ch.isalnum() else "_" for ch in cid)
                     sphere = self.server.scene.add_icosphere(
-                        f"/skills/collectors/{name}", radius=0.035, color=_SKILL_COLOR,
-                        position=pos)
+                        f"/skills/collectors/{name}", radius=0.035, color=_SKILL_COLOR, position=pos
+                    )
                     label = self.server.scene.add_label(
-                        f"/skills/collectors/{name}_label", cid, position=pos)
+                        f"/skills/collectors/{name}_label", cid, position=pos
+                    )
                     self._markers[cid] = (sphere, label)
                 else:
                     sphere, label = self._markers[cid]

@@ -73,8 +73,9 @@ class RobotPanel:
     def __init__(self, server: viser.ViserServer, load_meshes: bool = True) -> None:
         self.server = server
         gui = server.gui
-        self.collector = gui.add_dropdown("collector", ("(none)",), initial_value="(none)",
-                                          hint="Whose joints the A1 mirrors")
+        self.collector = gui.add_dropdown(
+            "collector", ("(none)",), initial_value="(none)", hint="Whose joints the A1 mirrors"
+        )
         self.follow = gui.add_checkbox("follow", True, hint="Keep the base above the origin")
         self.note = gui.add_markdown("*no collector yet: the A1 stands in its default pose*")
         self.root = server.scene.add_frame("/robot", show_axes=False, position=DEFAULT_BASE)
@@ -91,8 +92,9 @@ class RobotPanel:
             import yourdfpy
             from viser.extras import ViserUrdf
 
-            urdf = yourdfpy.URDF.load(str(path), build_scene_graph=load_meshes,
-                                      load_meshes=load_meshes)
+            urdf = yourdfpy.URDF.load(
+                str(path), build_scene_graph=load_meshes, load_meshes=load_meshes
+            )
             self.urdf = ViserUrdf(server, urdf, root_node_name="/robot", load_meshes=load_meshes)
             names = list(self.urdf.get_actuated_joint_names())
             self._index = np.array([JOINT_NAMES.index(n) for n in names])
@@ -124,8 +126,7 @@ class RobotPanel:
             note = "*no collector yet: the A1 stands in its default pose*"
         elif q is None:
             env = stats.labels.get("env", "?") if stats is not None else "?"
-            note = (f"collector **{cid}** (env `{env}`) reports no joint angles: "
-                    "default pose shown")
+            note = f"collector **{cid}** (env `{env}`) reports no joint angles: default pose shown"
         else:
             damage = stats.labels.get("damage", "none") if stats is not None else "none"
             note = f"mirroring **{cid}** (damage: {damage})"

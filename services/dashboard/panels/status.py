@@ -21,18 +21,28 @@ def _skill(c: CollectorInfo) -> str:
     return f"({coords})" + (" *zero: no skill yet*" if src == "none" else "")
 
 
-def summary_markdown(snap: SnapshotView | None, collectors: list[CollectorInfo],
-                     shown: int, clients: int, connected: bool) -> str:
+def summary_markdown(
+    snap: SnapshotView | None,
+    collectors: list[CollectorInfo],
+    shown: int,
+    clients: int,
+    connected: bool,
+) -> str:
     """Always-visible summary: repertoire size (the point count), live collector ids, bus."""
     alive = [c.id for c in collectors if c.alive]
     if snap is None:
         rep = "**repertoire:** *no data yet*"
     else:
-        rep = (f"**repertoire:** {shown} skills shown (size {snap.size}/{snap.capacity}, "
-               f"D={snap.dim}, version {snap.version}, δ={snap.delta:.3g}, "
-               f"entropy bound {snap.entropy_bound:.3g})")
-    col = (f"**collectors alive ({len(alive)}):** {', '.join(alive)}" if alive
-           else "**collectors alive:** *none yet*")
+        rep = (
+            f"**repertoire:** {shown} skills shown (size {snap.size}/{snap.capacity}, "
+            f"D={snap.dim}, version {snap.version}, δ={snap.delta:.3g}, "
+            f"entropy bound {snap.entropy_bound:.3g})"
+        )
+    col = (
+        f"**collectors alive ({len(alive)}):** {', '.join(alive)}"
+        if alive
+        else "**collectors alive:** *none yet*"
+    )
     bus = "" if connected else " · **bus: no router**"
     return f"{rep}  \n{col}  \n*viewers: {clients}*{bus}"
 
@@ -53,7 +63,8 @@ def collectors_markdown(collectors: list[CollectorInfo]) -> str:
             f"{_num(c.get('steps'))} steps · violation rate "
             f"{_num(c.get('violation_rate'), '.3f')} · rescues {_num(c.get('rescues'))} · "
             f"return {_num(c.get('return_mean'), '.3f')} · policy "
-            f"{_num(c.get('policy_version'))} · damage {c.damage or '–'} · skill {_skill(c)}")
+            f"{_num(c.get('policy_version'))} · damage {c.damage or '–'} · skill {_skill(c)}"
+        )
     return "\n".join(rows)
 
 
@@ -64,12 +75,15 @@ _HEADLINE: dict[str, tuple[str, ...]] = {
 }
 
 
-def services_markdown(stats: Mapping[tuple[str, str], StatsEntry],
-                      alive: Mapping[str, Mapping[str, float]]) -> str:
+def services_markdown(
+    stats: Mapping[tuple[str, str], StatsEntry], alive: Mapping[str, Mapping[str, float]]
+) -> str:
     """One line per non-collector service: alive or not, age of its stats, a few headline keys."""
     now = time.time()
-    names = sorted({svc for svc, _ in stats if svc != "collector"} |
-                   {svc for svc in alive if svc != "collector"})
+    names = sorted(
+        {svc for svc, _ in stats if svc != "collector"}
+        | {svc for svc in alive if svc != "collector"}
+    )
     if not names:
         return "*no service seen yet*"
     lines = []
@@ -83,6 +97,8 @@ def services_markdown(stats: Mapping[tuple[str, str], StatsEntry],
                 continue
             keys = _HEADLINE.get(svc, ())
             vals = [f"{k} {v:.4g}" for k in keys if (v := e.scalar(k)) is not None]
-            lines.append(f"- **{svc}/{sid}** {state} · stats {now - e.received:.1f} s old"
-                         + (" · " + " · ".join(vals) if vals else ""))
+            lines.append(
+                f"- **{svc}/{sid}** {state} · stats {now - e.received:.1f} s old"
+                + (" · " + " · ".join(vals) if vals else "")
+            )
     return "\n".join(lines)

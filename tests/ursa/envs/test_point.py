@@ -75,7 +75,7 @@ def test_cost_and_safety(pos: tuple[float, float], cost: float, safe: bool) -> N
     assert info["cost"] == pytest.approx(cost, abs=1e-9)
     assert info["safe"] is safe
     assert (info["cost"] <= 0.0) == safe  # the paper's c(s) ≤ 0 ⇔ s safe
-    np.testing.assert_array_equal(info["features"]["position"], np.float32(pos))
+    np.testing.assert_array_equal(info["features"]["position"], np.asarray(pos, np.float32))
 
 
 def test_cost_floor_and_jump_are_configurable() -> None:

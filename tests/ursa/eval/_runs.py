@@ -21,8 +21,13 @@ MICRO = {
 }  # fmt: skip
 
 
-def small_config(env: EnvName, feature: str | None = None, mode: Mode | None = None,
-                 micro: bool = True, **repertoire: int) -> Config:
+def small_config(
+    env: EnvName,
+    feature: str | None = None,
+    mode: Mode | None = None,
+    micro: bool = True,
+    **repertoire: int,
+) -> Config:
     cfg = preset("tiny", env, feature)
     lc = cfg.learner
     if micro:

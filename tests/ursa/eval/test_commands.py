@@ -56,14 +56,15 @@ def _check_velocity(out: Path, s: dict[str, Any]) -> None:
     np.testing.assert_allclose(col["target_1"], np.tile(ax1, g), rtol=1e-5)
     for k in (0, 1):
         err = col[f"error_{k}"]
-        np.testing.assert_allclose(err, np.abs(col[f"achieved_{k}"] - col[f"target_{k}"]),
-                                   rtol=1e-5, atol=1e-5)
+        np.testing.assert_allclose(
+            err, np.abs(col[f"achieved_{k}"] - col[f"target_{k}"]), rtol=1e-5, atol=1e-5
+        )
         assert np.all(col[f"step_error_{k}"] >= err - 1e-5)
-        np.testing.assert_allclose(np.array(s["error"])[:, :, k].ravel(), err, rtol=1e-5,
-                                   atol=1e-6)
+        np.testing.assert_allclose(np.array(s["error"])[:, :, k].ravel(), err, rtol=1e-5, atol=1e-6)
         assert s["error_mean"][k] == pytest.approx(err.mean(), rel=1e-5, abs=1e-6)
-        assert s["step_error_mean"][k] == pytest.approx(col[f"step_error_{k}"].mean(),
-                                                        rel=1e-5, abs=1e-6)
+        assert s["step_error_mean"][k] == pytest.approx(
+            col[f"step_error_{k}"].mean(), rel=1e-5, abs=1e-6
+        )
 
 
 def _check_spread(out: Path, e: dict[str, Any]) -> None:
@@ -89,7 +90,8 @@ def _check_final_rates(run_dir: Path, c: dict[str, Any]) -> None:
     f = c["final"]
     assert f["violation_rate"] == pytest.approx((b["unsafe_total"] - a["unsafe_total"]) / d)
     assert f["rescues_per_hour"] == pytest.approx(
-        (b["rescues"] - a["rescues"]) / d * c["control_hz"] * 3600.0)
+        (b["rescues"] - a["rescues"]) / d * c["control_hz"] * 3600.0
+    )
 
 
 def _hand_cells(s: dict[str, Any], label: str, out: Path) -> dict[str, Counter[tuple[int, ...]]]:
@@ -104,8 +106,12 @@ def _hand_cells(s: dict[str, Any], label: str, out: Path) -> dict[str, Counter[t
         for r in rows:
             x = [float(r[f"mean_{key}_{d}"]) for d in g["dims"]]
             if all(lo <= v <= hi for v, lo, hi in zip(x, g["low"], g["high"], strict=True)):
-                count[tuple(min(int((v - lo) / (hi - lo) * b), b - 1) for v, lo, hi, b
-                            in zip(x, g["low"], g["high"], g["bins"], strict=True))] += 1
+                count[
+                    tuple(
+                        min(int((v - lo) / (hi - lo) * b), b - 1)
+                        for v, lo, hi, b in zip(x, g["low"], g["high"], g["bins"], strict=True)
+                    )
+                ] += 1
         cells[g["name"]] = count
     return cells
 
@@ -154,8 +160,21 @@ def test_bare_checkpoint_loads(point_run: Path, tmp_path: Path) -> None:
 
 def test_diversity_point(point_run: Path, point_dd: Path, tmp_path: Path) -> None:
     out = tmp_path / "div"
-    argv = ["diversity", str(point_run), "--baseline", str(point_dd), "--out", str(out),
-            "--skills", "12", "--steps", "30", "--bins", "10", *QUIET]
+    argv = [
+        "diversity",
+        str(point_run),
+        "--baseline",
+        str(point_dd),
+        "--out",
+        str(out),
+        "--skills",
+        "12",
+        "--steps",
+        "30",
+        "--bins",
+        "10",
+        *QUIET,
+    ]
     assert main(argv) == 0
     s = _json(out / "diversity.json")
     _png(out / "diversity.png")
@@ -165,23 +184,26 @@ def test_diversity_point(point_run: Path, point_dd: Path, tmp_path: Path) -> Non
     for label in ("ursa", "baseline"):
         r = s["runs"][label]
         mine = [row for row in rows if row["label"] == label]
-        means = np.array([[float(m["mean_position_0"]), float(m["mean_position_1"])]
-                          for m in mine])
+        means = np.array([[float(m["mean_position_0"]), float(m["mean_position_1"])] for m in mine])
         # hand count: the 10 × 10 cells of [-1, 1]² that the 12 mean positions fall in
         assert np.all(np.abs(means) <= 1.0)  # the arena
-        cells = Counter(tuple(np.minimum(((p + 1.0) / 0.2).astype(int), 9).tolist())
-                        for p in means)
+        cells = Counter(tuple(np.minimum(((p + 1.0) / 0.2).astype(int), 9).tolist()) for p in means)
         assert _hand_cells(s, label, out) == {"position": cells}
         assert r["covered_cells"] == len(cells) and r["total_cells"] == 100
         # and they are the very cells (and counts) the cells CSV lists
-        listed = {tuple(int(x) for x in c["cell"].split()): int(c["count"])
-                  for c in _csv(out / f"diversity_cells_{label}.csv") if int(c["count"]) > 0}
+        listed = {
+            tuple(int(x) for x in c["cell"].split()): int(c["count"])
+            for c in _csv(out / f"diversity_cells_{label}.csv")
+            if int(c["count"]) > 0
+        }
         assert listed == dict(cells)
         assert r["executions"] == len(mine) == 12
-        assert r["return_mean"] == pytest.approx(np.mean([float(m["return"]) for m in mine]),
-                                                 rel=1e-5)
+        assert r["return_mean"] == pytest.approx(
+            np.mean([float(m["return"]) for m in mine]), rel=1e-5
+        )
         assert r["violation_rate_mean"] == pytest.approx(
-            np.mean([float(m["violation_rate"]) for m in mine]), rel=1e-5, abs=1e-6)
+            np.mean([float(m["violation_rate"]) for m in mine]), rel=1e-5, abs=1e-6
+        )
     assert s["runs"]["baseline"]["mode"] == "daydreamer"
     assert 0.0 <= s["runs"]["ursa"]["within_delta_fraction"] <= 1.0
     assert s["ratio"] == s["runs"]["ursa"]["covered_cells"] / s["runs"]["baseline"]["covered_cells"]
@@ -201,15 +223,20 @@ def test_default_out_is_run_eval(point_run: Path) -> None:
 def test_velocity_on_point_positions(point_run: Path, tmp_path: Path) -> None:
     # the point env's provided φ (position) is 2-D: the tracking evaluation applies as is
     out = tmp_path / "vel"
-    assert main(["velocity", str(point_run), "--out", str(out), "--grid", "3", "--steps", "20",
-                 *QUIET]) == 0
+    assert (
+        main(
+            ["velocity", str(point_run), "--out", str(out), "--grid", "3", "--steps", "20", *QUIET]
+        )
+        == 0
+    )
     s = _json(out / "velocity.json")
     _png(out / "velocity.png")
     assert np.array(s["error"]).shape == (3, 3, 2)
     _check_velocity(out, s)
     rep = load_run(point_run).require_repertoire().skills
-    np.testing.assert_allclose([s["axes"][0][0], s["axes"][0][-1]],
-                               [rep[:, 0].min(), rep[:, 0].max()])
+    np.testing.assert_allclose(
+        [s["axes"][0][0], s["axes"][0][-1]], [rep[:, 0].min(), rep[:, 0].max()]
+    )
     assert len(_csv(out / "velocity.csv")) == 9
 
 
@@ -224,8 +251,14 @@ def test_curves_point(point_run: Path, tmp_path: Path) -> None:
     assert 1 < f["repertoire_size"] <= 300 and f["delta"] > 0 and math.isfinite(f["entropy_bound"])
     assert math.isfinite(f["return"])
     curves = {r["curve"] for r in _csv(out / "curves.csv")}
-    assert {"violation_rate", "rescues_per_hour", "return", "repertoire_size", "delta",
-            "entropy_bound"} <= curves
+    assert {
+        "violation_rate",
+        "rescues_per_hour",
+        "return",
+        "repertoire_size",
+        "delta",
+        "entropy_bound",
+    } <= curves
 
 
 def test_curves_from_hand_written_metrics(point_run: Path, tmp_path: Path) -> None:
@@ -235,39 +268,88 @@ def test_curves_from_hand_written_metrics(point_run: Path, tmp_path: Path) -> No
     run_dir = tmp_path / "run"
     shutil.copytree(point_run, run_dir)
     rows = []
-    for cid, unsafe, rescues in (("c0", [0, 10, 10, 30, 40], [0, 0, 1, 1, 3]),
-                                 ("c1", [0, 0, 0, 0, 20], [0, 0, 0, 0, 1])):
+    for cid, unsafe, rescues in (
+        ("c0", [0, 10, 10, 30, 40], [0, 0, 1, 1, 3]),
+        ("c1", [0, 0, 0, 0, 20], [0, 0, 0, 0, 1]),
+    ):
         for i in range(5):
-            rows.append({"t": 1000.0 + i, "service": "collector", "id": cid, "labels": {},
-                         "scalars": {"steps": 100.0 * i, "unsafe_total": unsafe[i],
-                                     "rescues": rescues[i]}})
+            rows.append(
+                {
+                    "t": 1000.0 + i,
+                    "service": "collector",
+                    "id": cid,
+                    "labels": {},
+                    "scalars": {
+                        "steps": 100.0 * i,
+                        "unsafe_total": unsafe[i],
+                        "rescues": rescues[i],
+                    },
+                }
+            )
     (run_dir / "metrics" / "collector-serial.jsonl").write_text(
-        "".join(json.dumps(r) + "\n" for r in rows))
+        "".join(json.dumps(r) + "\n" for r in rows)
+    )
     out = tmp_path / "curves"
-    assert main(["curves", str(run_dir), "--out", str(out), "--window", "300",
-                 "--control-hz", "10", *QUIET]) == 0
+    assert (
+        main(
+            [
+                "curves",
+                str(run_dir),
+                "--out",
+                str(out),
+                "--window",
+                "300",
+                "--control-hz",
+                "10",
+                *QUIET,
+            ]
+        )
+        == 0
+    )
     s = _json(out / "curves.json")
     assert s["env_steps"] == 800
     csv_rows = _csv(out / "curves.csv")
-    curve = {name: np.array([[float(r["env_steps"]), float(r["value"])] for r in csv_rows
-                             if r["curve"] == name]) for name in ("violation_rate",
-                                                                  "rescues_per_hour")}
+    curve = {
+        name: np.array(
+            [[float(r["env_steps"]), float(r["value"])] for r in csv_rows if r["curve"] == name]
+        )
+        for name in ("violation_rate", "rescues_per_hour")
+    }
     # 200: (10-0)/200; 400: (10-0)/400; 600: (30-10)/400; 800: (60-10)/400
-    np.testing.assert_allclose(curve["violation_rate"],
-                               [[200, 0.05], [400, 0.025], [600, 0.05], [800, 0.125]])
+    np.testing.assert_allclose(
+        curve["violation_rate"], [[200, 0.05], [400, 0.025], [600, 0.05], [800, 0.125]]
+    )
     # per step × 10 steps/s × 3600 s/h: 0/200, 1/400, 1/400, 3/400
-    np.testing.assert_allclose(curve["rescues_per_hour"],
-                               [[200, 0.0], [400, 90.0], [600, 90.0], [800, 270.0]])
+    np.testing.assert_allclose(
+        curve["rescues_per_hour"], [[200, 0.0], [400, 90.0], [600, 90.0], [800, 270.0]]
+    )
     assert s["final"]["violation_rate"] == pytest.approx(0.125)
     assert s["final"]["rescues_per_hour"] == pytest.approx(270.0)
     assert s["mean"]["violation_rate"] == pytest.approx(0.0625)
 
 
-def test_all_runs_what_applies(point_run: Path, point_dd: Path, tmp_path: Path,
-                               capsys: pytest.CaptureFixture[str]) -> None:
+def test_all_runs_what_applies(
+    point_run: Path, point_dd: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
     out = tmp_path / "all"
-    assert main(["all", str(point_run), "--baseline", str(point_dd), "--out", str(out),
-                 "--skills", "4", "--steps", "10", *QUIET]) == 0
+    assert (
+        main(
+            [
+                "all",
+                str(point_run),
+                "--baseline",
+                str(point_dd),
+                "--out",
+                str(out),
+                "--skills",
+                "4",
+                "--steps",
+                "10",
+                *QUIET,
+            ]
+        )
+        == 0
+    )
     summary = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
     assert summary["ran"] == ["curves", "embedding", "diversity", "velocity"]  # no A1: no damage
     for name in ("curves", "embedding", "diversity", "velocity"):
@@ -275,8 +357,9 @@ def test_all_runs_what_applies(point_run: Path, point_dd: Path, tmp_path: Path,
         _json(out / f"{name}.json")
 
 
-def test_errors_are_reported(point_run: Path, point_dd: Path, tmp_path: Path,
-                             capsys: pytest.CaptureFixture[str]) -> None:
+def test_errors_are_reported(
+    point_run: Path, point_dd: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
     assert main(["damage", str(point_run), "--out", str(tmp_path), *QUIET]) == 1
     assert "A1" in capsys.readouterr().err
     assert main(["velocity", str(point_dd), "--out", str(tmp_path), *QUIET]) == 1
@@ -300,8 +383,24 @@ def a1_runs(run_factory: Callable[..., Path]) -> dict[str, Path]:
 @pytest.mark.slow
 def test_a1_diversity_and_embedding(a1_runs: dict[str, Path], tmp_path: Path) -> None:
     out = tmp_path / "a1"
-    assert main(["diversity", str(a1_runs["ursa"]), "--baseline", str(a1_runs["dd"]),
-                 "--out", str(out), "--skills", "4", "--steps", "30", *QUIET]) == 0
+    assert (
+        main(
+            [
+                "diversity",
+                str(a1_runs["ursa"]),
+                "--baseline",
+                str(a1_runs["dd"]),
+                "--out",
+                str(out),
+                "--skills",
+                "4",
+                "--steps",
+                "30",
+                *QUIET,
+            ]
+        )
+        == 0
+    )
     s = _json(out / "diversity.json")
     _png(out / "diversity.png")
     assert s["feature_key"] == "vae_input" and len(s["grids"]) == 12
@@ -313,16 +412,31 @@ def test_a1_diversity_and_embedding(a1_runs: dict[str, Path], tmp_path: Path) ->
         assert r["covered_cells"] == sum(len(c) for c in hand.values())
         assert r["outside_points"] == sum(4 - sum(c.values()) for c in hand.values())
     assert s["runs"]["ursa"]["mode"] == "ursa"
-    assert main(["embedding", str(a1_runs["ursa"]), "--out", str(out), "--skills", "3",
-                 "--steps", "20", *QUIET]) == 0
+    assert (
+        main(
+            [
+                "embedding",
+                str(a1_runs["ursa"]),
+                "--out",
+                str(out),
+                "--skills",
+                "3",
+                "--steps",
+                "20",
+                *QUIET,
+            ]
+        )
+        == 0
+    )
     e = _json(out / "embedding.json")
     assert e["skills"] == 3
     _check_spread(out, e)
 
 
 @pytest.mark.slow
-def test_a1_archive_from_another_encoder_is_reencoded(a1_runs: dict[str, Path],
-                                                      tmp_path: Path) -> None:
+def test_a1_archive_from_another_encoder_is_reencoded(
+    a1_runs: dict[str, Path], tmp_path: Path
+) -> None:
     import shutil
 
     run_dir = tmp_path / "copy"
@@ -344,9 +458,25 @@ def test_a1_archive_from_another_encoder_is_reencoded(a1_runs: dict[str, Path],
 @pytest.mark.slow
 def test_a1_damage(a1_runs: dict[str, Path], tmp_path: Path) -> None:
     out = tmp_path / "dmg"
-    assert main(["damage", str(a1_runs["ursa"]), str(a1_runs["vel"]), "--baseline",
-                 str(a1_runs["dd"]), "--out", str(out), "--skills", "2", "--steps", "25",
-                 *QUIET]) == 0
+    assert (
+        main(
+            [
+                "damage",
+                str(a1_runs["ursa"]),
+                str(a1_runs["vel"]),
+                "--baseline",
+                str(a1_runs["dd"]),
+                "--out",
+                str(out),
+                "--skills",
+                "2",
+                "--steps",
+                "25",
+                *QUIET,
+            ]
+        )
+        == 0
+    )
     s = _json(out / "damage.json")
     _png(out / "damage.png")
     scen = ["front_hip", "front_upper", "front_lower", "back_hip", "back_upper", "back_lower"]
@@ -363,19 +493,37 @@ def test_a1_damage(a1_runs: dict[str, Path], tmp_path: Path) -> None:
             # the best skill is the one whose return is the score, and it is in the archive
             best = int(np.argmax(r["returns"]))
             assert len(r["returns"]) == 2 and r["score"] == r["returns"][best]
-            np.testing.assert_allclose(r["best_skill"],
-                                       reps[r["run"]].get(np.array([r["best_skill_id"]]))[0],
-                                       rtol=1e-6)
+            np.testing.assert_allclose(
+                r["best_skill"], reps[r["run"]].get(np.array([r["best_skill_id"]]))[0], rtol=1e-6
+            )
     assert len(_csv(out / "damage.csv")) == 18
     # the same skills and seed, intact: each frozen joint changes every skill's return, and a
     # scenario evaluated twice gives the same returns (only the damage differs between them)
     again = tmp_path / "dmg-intact"
-    assert main(["damage", str(a1_runs["ursa"]), "--scenarios", "intact", "front_hip",
-                 "back_lower", "--out", str(again), "--skills", "2", "--steps", "25",
-                 *QUIET]) == 0
+    assert (
+        main(
+            [
+                "damage",
+                str(a1_runs["ursa"]),
+                "--scenarios",
+                "intact",
+                "front_hip",
+                "back_lower",
+                "--out",
+                str(again),
+                "--skills",
+                "2",
+                "--steps",
+                "25",
+                *QUIET,
+            ]
+        )
+        == 0
+    )
     by = {r["scenario"]: np.array(r["returns"]) for r in _json(again / "damage.json")["runs"]}
-    first = {r["scenario"]: np.array(r["returns"]) for r in s["runs"]
-             if r["run"] == a1_runs["ursa"].name}
+    first = {
+        r["scenario"]: np.array(r["returns"]) for r in s["runs"] if r["run"] == a1_runs["ursa"].name
+    }
     for sc in ("front_hip", "back_lower"):
         np.testing.assert_allclose(by[sc], first[sc], rtol=1e-9)
         assert np.all(np.abs(by[sc] - by["intact"]) > 1e-6), (sc, by[sc], by["intact"])
@@ -384,8 +532,22 @@ def test_a1_damage(a1_runs: dict[str, Path], tmp_path: Path) -> None:
 @pytest.mark.slow
 def test_a1_velocity_and_curves(a1_runs: dict[str, Path], tmp_path: Path) -> None:
     out = tmp_path / "vel"
-    assert main(["velocity", str(a1_runs["vel"]), "--out", str(out), "--grid", "3",
-                 "--steps", "25", *QUIET]) == 0
+    assert (
+        main(
+            [
+                "velocity",
+                str(a1_runs["vel"]),
+                "--out",
+                str(out),
+                "--grid",
+                "3",
+                "--steps",
+                "25",
+                *QUIET,
+            ]
+        )
+        == 0
+    )
     s = _json(out / "velocity.json")
     _png(out / "velocity.png")
     assert s["dims"] == ["forward velocity (m/s)", "yaw rate (rad/s)"]

@@ -27,18 +27,38 @@ def trained(point_runs: dict[str, Any]) -> dict[str, str]:
 
 
 @pytest.mark.timeout(1800)
-def test_ursa_covers_five_times_the_cells_of_daydreamer(trained: dict[str, str],
-                                                        tmp_path: Path) -> None:
+def test_ursa_covers_five_times_the_cells_of_daydreamer(
+    trained: dict[str, str], tmp_path: Path
+) -> None:
     out = tmp_path / "diversity"
-    assert main(["diversity", trained["ursa"], "--baseline", trained["daydreamer"],
-                 "--out", str(out), "--skills", str(SKILLS), "--steps", str(SKILL_PERIOD),
-                 "--bins", str(BINS), "--no-progress"]) == 0
+    assert (
+        main(
+            [
+                "diversity",
+                trained["ursa"],
+                "--baseline",
+                trained["daydreamer"],
+                "--out",
+                str(out),
+                "--skills",
+                str(SKILLS),
+                "--steps",
+                str(SKILL_PERIOD),
+                "--bins",
+                str(BINS),
+                "--no-progress",
+            ]
+        )
+        == 0
+    )
     s = json.loads((out / "diversity.json").read_text())
     u, d = s["runs"]["ursa"], s["runs"]["baseline"]
-    print(f"\ncovered cells: ursa {u['covered_cells']} / daydreamer {d['covered_cells']} of "
-          f"{u['total_cells']} ({u['updates']} / {d['updates']} updates); ursa within δ "
-          f"{u.get('within_delta_fraction')}, returns {u['return_mean']:.1f} / "
-          f"{d['return_mean']:.1f}")
+    print(
+        f"\ncovered cells: ursa {u['covered_cells']} / daydreamer {d['covered_cells']} of "
+        f"{u['total_cells']} ({u['updates']} / {d['updates']} updates); ursa within δ "
+        f"{u.get('within_delta_fraction')}, returns {u['return_mean']:.1f} / "
+        f"{d['return_mean']:.1f}"
+    )
     assert u["nonfinite_actions"] == 0 and d["nonfinite_actions"] == 0
     assert u["executions"] == d["executions"] == SKILLS
     assert d["covered_cells"] >= 1

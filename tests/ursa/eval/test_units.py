@@ -33,8 +33,9 @@ def test_coverage_grid_counts_cells_by_hand() -> None:
 
 
 def test_coverage_grid_one_dimension_and_bad_input() -> None:
-    counts, outside = coverage_grid(np.array([[-1.0], [-0.5], [0.49], [0.5]]), np.array([-1.0]),
-                                    np.array([1.0]), 4)
+    counts, outside = coverage_grid(
+        np.array([[-1.0], [-0.5], [0.49], [0.5]]), np.array([-1.0]), np.array([1.0]), 4
+    )
     np.testing.assert_array_equal(counts, [1, 1, 1, 1])  # cells [-1, -.5) [-.5, 0) [0, .5) [.5, 1]
     assert outside == 0
     with pytest.raises(ValueError):
@@ -82,10 +83,14 @@ def test_farthest_point_sampling_by_hand() -> None:
 def test_config_round_trip_through_yaml(tmp_path: Path) -> None:
     cfg = preset("tiny", "a1", "velocity")
     cfg = dataclasses.replace(
-        cfg, a1=dataclasses.replace(cfg.a1, damage="front_upper", kp=(90.0, 91.0, 92.0)),
-        learner=dataclasses.replace(cfg.learner, mode="ursa-supervised", seed=3))
-    doc = {"argv": ["--core.feature", "velocity"],
-           "config": {"core": to_plain(cfg), "bus": {"router": "tcp/x:1"}}}
+        cfg,
+        a1=dataclasses.replace(cfg.a1, damage="front_upper", kp=(90.0, 91.0, 92.0)),
+        learner=dataclasses.replace(cfg.learner, mode="ursa-supervised", seed=3),
+    )
+    doc = {
+        "argv": ["--core.feature", "velocity"],
+        "config": {"core": to_plain(cfg), "bus": {"router": "tcp/x:1"}},
+    }
     (tmp_path / "config").mkdir()
     (tmp_path / "config" / "learner.yaml").write_text(yaml.safe_dump(doc, sort_keys=False))
     got = load_config(tmp_path)
@@ -131,15 +136,43 @@ def _write_metrics(run: Path) -> None:
     # two collectors, 1000 steps per 10 s each; the second restarts its counters at t = 30
     for k in range(7):
         t = 10.0 * k
-        rows.append({"t": t, "service": "collector", "id": "0",
-                     "scalars": {"steps": 1000 * k, "unsafe_total": 100 * k, "rescues": k,
-                                 "return_mean": 2.0, "violation_rate": 0.1}})
+        rows.append(
+            {
+                "t": t,
+                "service": "collector",
+                "id": "0",
+                "scalars": {
+                    "steps": 1000 * k,
+                    "unsafe_total": 100 * k,
+                    "rescues": k,
+                    "return_mean": 2.0,
+                    "violation_rate": 0.1,
+                },
+            }
+        )
         s = 1000 * k if k <= 3 else 1000 * (k - 4)
-        rows.append({"t": t + 0.5, "service": "collector", "id": "1",
-                     "scalars": {"steps": s, "unsafe_total": 0, "rescues": 0,
-                                 "return_mean": 4.0, "violation_rate": 0.0}})
-        rows.append({"t": t + 1.0, "service": "repertoire", "id": "main",
-                     "scalars": {"size": 10 * k, "delta": 0.5, "entropy_bound": -1.0 + k}})
+        rows.append(
+            {
+                "t": t + 0.5,
+                "service": "collector",
+                "id": "1",
+                "scalars": {
+                    "steps": s,
+                    "unsafe_total": 0,
+                    "rescues": 0,
+                    "return_mean": 4.0,
+                    "violation_rate": 0.0,
+                },
+            }
+        )
+        rows.append(
+            {
+                "t": t + 1.0,
+                "service": "repertoire",
+                "id": "main",
+                "scalars": {"size": 10 * k, "delta": 0.5, "entropy_bound": -1.0 + k},
+            }
+        )
     (run / "metrics").mkdir(parents=True)
     text = "\n".join(json.dumps(r) for r in rows) + "\n{partial line"
     (run / "metrics" / "all-0.jsonl").write_text(text)

@@ -310,16 +310,16 @@ def test_serial_loop_and_evaluation_smoke() -> None:
     assert loop.policy.version == loop.learner.updates
     assert loop.repertoire is not None and len(loop.repertoire) == 200
     skills = loop.repertoire.sample(3, np.random.default_rng(0))
-    res = evaluate_skills(loop.policy, PointEnv(seed=1), skills, 20, loop.repertoire.cov,
-                          record=True)
+    res = evaluate_skills(
+        loop.policy, PointEnv(seed=1), skills, 20, loop.repertoire.cov, record=True
+    )
     assert res.achieved.shape == (3, 2) and res.distance.shape == (3,)
     # reference: the recorded actions replayed in a fresh env of the same seed, without resets
     # (the point env's φ is the position itself in ursa-supervised mode)
     _check_against_replay(res, PointEnv(seed=1), loop.repertoire.cov)
     # random actions in an arena that is mostly unsafe disc: some steps are unsafe, some not
     big = PointConfig(unsafe_radius=0.9)
-    rnd = evaluate_skills(None, PointEnv(big, seed=1), skills, 20, loop.repertoire.cov,
-                          record=True)
+    rnd = evaluate_skills(None, PointEnv(big, seed=1), skills, 20, loop.repertoire.cov, record=True)
     assert np.any(rnd.violation_rate > 0) and np.any(rnd.violation_rate < 1)
     _check_against_replay(rnd, PointEnv(big, seed=1), loop.repertoire.cov)
 
@@ -348,7 +348,8 @@ def _check_against_replay(res: EvalResult, env: PointEnv, cov: np.ndarray) -> No
         np.testing.assert_allclose(res.achieved[i], mean, atol=1e-5)
         d = mean - res.skills[i]
         assert res.distance[i] == pytest.approx(  # ‖d‖_Σ = sqrt(dᵀ Σ⁻¹ d)
-            float(np.sqrt(d @ np.linalg.solve(sigma, d))), rel=1e-4, abs=1e-5)
+            float(np.sqrt(d @ np.linalg.solve(sigma, d))), rel=1e-4, abs=1e-5
+        )
 
 
 def test_serial_loop_ursa_mode_reencodes() -> None:

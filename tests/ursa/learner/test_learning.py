@@ -149,8 +149,10 @@ def test_skills_executed_within_delta(ursa_run: dict[str, Any]) -> None:
 def test_skills_executed_within_delta_across_seeds(ursa_runs: list[dict[str, Any]]) -> None:
     within = np.array([r["eval"].within(r["delta"]).mean() for r in ursa_runs])
     rnd = np.array([r["random"].within(r["delta"]).mean() for r in ursa_runs])
-    print(f"\nwithin δ by seed {dict(zip(SEEDS, within.round(3), strict=True))}; "
-          f"random {rnd.round(3).tolist()}")
+    print(
+        f"\nwithin δ by seed {dict(zip(SEEDS, within.round(3), strict=True))}; "
+        f"random {rnd.round(3).tolist()}"
+    )
     assert np.median(within) >= WITHIN_MEDIAN, within
     assert within.min() >= WITHIN_WORST, within
     assert rnd.max() <= RANDOM_WITHIN, rnd
@@ -159,8 +161,9 @@ def test_skills_executed_within_delta_across_seeds(ursa_runs: list[dict[str, Any
 def test_safety_violations_below_a_third_of_random_every_seed(
     ursa_runs: list[dict[str, Any]],
 ) -> None:
-    rates = [(r["eval"].violation_rate.mean(), r["random"].violation_rate.mean())
-             for r in ursa_runs]
+    rates = [
+        (r["eval"].violation_rate.mean(), r["random"].violation_rate.mean()) for r in ursa_runs
+    ]
     print(f"\nviolation rate (ursa, random) by seed: {rates}")
     for ursa_rate, random_rate in rates:
         assert ursa_rate < random_rate / 3.0, rates
