@@ -14,8 +14,8 @@ when it is spent, until the learner's next message raises it.
   reports the ratio it reaches.
 - The learner's prefill is collected at full speed; then collectors wait until the learner has
   caught up on it. A learner that is done (``--max-updates``), cannot train (no repertoire
-  snapshot after its prefill) or is missing (no budget heard for ``stale_s``) never holds a
-  collector: the gate opens, and the collector keeps its bounded backlog as without a limiter.
+  snapshot after its prefill) or is missing (no liveliness token) never holds a collector: the
+  gate opens, and the collector keeps its bounded backlog as without a limiter.
 
 The budget is a function of the learner's counters, which its checkpoint and replay restore,
 so the limit resumes where it stopped after a restart.
@@ -57,34 +57,48 @@ def default_slack(batch_size: int, seq_len: int, train_ratio: float, updates: in
 
 @dataclass
 class PaceGate:
-    """A collector's side of the limiter: the latest budget share, counted down per step."""
+    """A collector's side of the limiter: the latest budget share, counted down per step.
+
+    It holds the collector only while a learner is alive (its liveliness token): a missing
+    learner never holds it. Until the live learner's first budget arrives (it is still starting),
+    the collector may take ``allowance`` steps, its share of the learner's prefill.
+    """
 
     mode: PaceMode = "wait"
-    stale_s: float = 5.0
-    """A budget older than this is ignored (the learner is missing or stopped publishing)."""
+    allowance: float = 2000.0
+    """Steps allowed before a live learner's first budget is heard."""
     budget: float = math.inf
     """Env steps this collector may still take."""
-    heard_at: float = -math.inf
-    """Time (monotonic seconds) of the latest budget."""
+    heard: bool = False
+    """A budget has arrived from the live learner."""
+    learner_alive: bool = False
     waited_s: float = 0.0
     """Seconds spent waiting so far."""
 
-    def hear(self, total_budget: float, collectors: int, engaged: bool, now: float) -> None:
+    def __post_init__(self) -> None:
+        self.budget = self.allowance
+
+    def hear(self, total_budget: float, collectors: int, engaged: bool) -> None:
         """A budget from the learner: ``total_budget`` for all ``collectors`` alive;
-        ``engaged`` False (not training yet, or done) lifts the limit."""
-        self.heard_at = now
+        ``engaged`` False (done, or unable to train) lifts the limit."""
+        self.heard = True
         self.budget = total_budget / max(1, collectors) if engaged else math.inf
 
-    def open(self, now: float) -> bool:
+    def learner(self, alive: bool) -> None:
+        """The learner's liveliness changed (a restarted learner starts from its allowance
+        again until its first budget)."""
+        if alive and not self.learner_alive and not self.heard:
+            self.budget = self.allowance
+        if not alive:
+            self.heard = False
+        self.learner_alive = alive
+
+    def open(self) -> bool:
         """Whether the collector may take a step now."""
-        if self.mode == "free" or now - self.heard_at > self.stale_s:
+        if self.mode == "free" or not self.learner_alive:
             return True
         return self.budget > 0
 
     def stepped(self) -> None:
         """Spend one step of the budget."""
         self.budget -= 1.0
-
-    def waiting(self, now: float) -> bool:
-        """The gate is closed now (for the stats)."""
-        return not self.open(now)

@@ -25,10 +25,17 @@ import torch
 
 from proto import codec
 from proto import ursa_pb2 as pb
-from services.common.bus import checked_decode, publisher, query_one, safe_handler, validate_with
+from services.common.bus import (
+    Presence,
+    checked_decode,
+    publisher,
+    query_one,
+    safe_handler,
+    validate_with,
+)
 from services.common.config import BusConfig, RunConfig, config_hash, save_resolved
 from services.common.runtime import ServiceRuntime
-from ursa.config import Config, build_env
+from ursa.config import PREFILL, Config, build_env
 from ursa.pace import PaceGate
 from ursa.policy import Policy
 
@@ -121,8 +128,12 @@ class Collector:
             t.weights,
             safe_handler(pb.PolicyWeights, self._on_weights, self.rt.drops, args.run.run_id),
         )
-        self.gate = PaceGate(mode=self.cfg.collector.pace)
-        """The rate limiter: waits while the learner is behind its replay ratio."""
+        self.gate = PaceGate(
+            mode=self.cfg.collector.pace, allowance=float(PREFILL[self.cfg.preset])
+        )
+        """The rate limiter: waits while a live learner is behind its replay ratio."""
+        self.learner_presence = Presence(self.rt.session, t.alive("learner"))
+        self._presence_checked = 0.0
         self.sub_pace = self.rt.session.declare_subscriber(
             t.learner_stats,
             safe_handler(pb.Stats, self._on_learner_stats, self.rt.drops, args.run.run_id),
@@ -433,7 +444,7 @@ class Collector:
                 "backlog_chunks": len(self.backlog["chunks"]),
                 "backlog_dropped": self.backlog_dropped,
                 "nonfinite_actions": self.nonfinite_actions,
-                "pace_waiting": float(self.gate.waiting(time.monotonic())),
+                "pace_waiting": float(not self.gate.open()),
                 "pace_wait_s": self.gate.waited_s,
             },
             labels={

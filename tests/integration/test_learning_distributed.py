@@ -1,10 +1,11 @@
 """Issue 6's end-to-end learning test: the point env trained across processes over the bus.
 
-A real router, the repertoire service, the learner service and two collectors (20 Hz control,
-the A1's rate) train with the recipe of the learner-core tests (:mod:`tests.trained`, passed to
-every service as flags). The learner stops updating after the same 3000 updates; SIGTERM
-writes its checkpoint and the repertoire's archive, and the run directory is then judged with
-the same thresholds as the single-process run (``tests/ursa/learner/test_learning.py``).
+A real router, the repertoire service, the learner service and two unthrottled collectors (the
+rate limiter of ``ursa.pace`` holds them to the learner's replay ratio) train with the recipe of
+the learner-core tests (:mod:`tests.trained`, passed to every service as flags). The learner
+stops updating after the same 3000 updates; SIGTERM writes its checkpoint and the repertoire's
+archive, and the run directory is then judged with the same thresholds as the single-process
+run (``tests/ursa/learner/test_learning.py``).
 """
 
 from __future__ import annotations
@@ -59,9 +60,7 @@ def ursa_run(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Any]:
                 f"c{i}",
                 "--seed",
                 str(i),
-                "--realtime-factor",
-                "1.0",
-            )
+            )  # unthrottled: the rate limiter (ursa.pace) holds them to the learner's ratio
         session = st.session()
         watcher = StatsWatcher(session, st.topics)
         progress: list[tuple[float, float, float]] = []

@@ -29,25 +29,35 @@ def test_default_slack_is_a_few_updates_of_env_steps() -> None:
 
 
 def test_gate_spends_its_share_then_waits_until_the_budget_rises() -> None:
-    gate = PaceGate(mode="wait", stale_s=5.0)
-    assert gate.open(0.0)  # nothing heard: never hold a collector
-    gate.hear(total_budget=6.0, collectors=3, engaged=True, now=1.0)
+    gate = PaceGate(mode="wait", allowance=3.0)
+    assert gate.open()  # no learner alive: never hold a collector
+    gate.learner(True)
+    for _ in range(3):  # the live learner has not spoken yet: the prefill allowance
+        assert gate.open()
+        gate.stepped()
+    assert not gate.open()
+    gate.hear(total_budget=6.0, collectors=3, engaged=True)
     assert gate.budget == pytest.approx(2.0)  # its share of the 6 steps
     for _ in range(2):
-        assert gate.open(1.1)
+        assert gate.open()
         gate.stepped()
-    assert not gate.open(1.2) and gate.waiting(1.2)
-    gate.hear(total_budget=30.0, collectors=3, engaged=True, now=1.5)
-    assert gate.open(1.6)
+    assert not gate.open()
+    gate.hear(total_budget=30.0, collectors=3, engaged=True)
+    assert gate.open()
 
 
 def test_gate_opens_when_the_learner_is_missing_done_or_free() -> None:
-    gate = PaceGate(mode="wait", stale_s=5.0)
-    gate.hear(total_budget=-100.0, collectors=1, engaged=True, now=10.0)
-    assert not gate.open(14.9)
-    assert gate.open(15.1)  # no budget heard for stale_s: the learner is gone
-    gate.hear(total_budget=-100.0, collectors=1, engaged=False, now=20.0)
-    assert gate.open(20.1)  # not training (prefill, or max updates reached)
+    gate = PaceGate(mode="wait", allowance=0.0)
+    gate.learner(True)
+    gate.hear(total_budget=-100.0, collectors=1, engaged=True)
+    assert not gate.open()
+    gate.learner(False)
+    assert gate.open()  # the learner is gone: its last budget no longer holds anyone
+    gate.learner(True)
+    assert not gate.open()  # back, but silent: only its allowance (0 here)
+    gate.hear(total_budget=-100.0, collectors=1, engaged=False)
+    assert gate.open()  # not training (max updates reached, or no repertoire)
     free = PaceGate(mode="free")
-    free.hear(total_budget=-100.0, collectors=1, engaged=True, now=0.0)
-    assert free.open(0.1)  # a real robot never waits
+    free.learner(True)
+    free.hear(total_budget=-100.0, collectors=1, engaged=True)
+    assert free.open()  # a real robot never waits
