@@ -28,8 +28,8 @@ _COLORS = ["36", "33", "35", "32", "34", "31", "96", "93", "95", "92"]
 class UpArgs:
     """``ursa up``: the whole stack on this machine."""
 
-    preset: Literal["tiny", "small", "paper"] = "small"
-    """Config preset of every service."""
+    preset: Literal["tiny", "point", "small", "paper"] = "small"
+    """Config preset of every service (``point``: the point-env learning recipe of the tests)."""
     env: Literal["a1", "point"] = "a1"
     """Environment the collectors run."""
     collectors: int = 2
