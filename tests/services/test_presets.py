@@ -14,7 +14,7 @@ from ursa.config import PREFILL, TRAIN_STEPS, PresetName, preset
 
 def test_every_entry_point_offers_the_core_presets() -> None:
     core = typing.get_args(PresetName)
-    assert PRESETS == core
+    assert core == PRESETS
     hints = typing.get_type_hints(UpArgs)
     assert typing.get_args(hints["preset"]) == core
 
@@ -26,8 +26,8 @@ def test_the_learning_tests_train_the_point_preset() -> None:
             cfg, learner=dataclasses.replace(cfg.learner, mode=mode, seed=seed)
         )
         assert trained.point_config(mode, seed) == want, name
-    assert trained.PREFILL_STEPS == PREFILL["point"]
-    assert trained.ENV_STEPS == TRAIN_STEPS["point"]
+    assert PREFILL["point"] == trained.PREFILL_STEPS
+    assert TRAIN_STEPS["point"] == trained.ENV_STEPS
     # the recipe differs from tiny in rates and horizons, never in code paths or sizes
     tiny = preset("tiny", "point").learner
     assert (cfg.learner.deter, cfg.learner.units) == (tiny.deter, tiny.units)
