@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import tempfile
 from pathlib import Path
 from typing import Any
 
@@ -12,14 +13,45 @@ import pytest
 pytest_plugins = ["tests.strict", "pytester"]
 
 
-@pytest.fixture(scope="session")
-def point_runs(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Any]:
-    """The trained point-env runs of :mod:`tests.trained` (URSA and DayDreamer), trained once
-    per session (or reused from ``URSA_TRAINED_POINT_DIR``)."""
-    from tests.trained import trained_point_runs
+_training: dict[str, Any] = {}
 
+
+def _root(config: pytest.Config) -> Path:
     cache = os.environ.get("URSA_TRAINED_POINT_DIR")
-    root = Path(cache) if cache else tmp_path_factory.mktemp("point-runs")
-    out = trained_point_runs(root)
-    print(f"\npoint runs in {root}: {out['seconds']} s (cached: {out['cached']})")
+    if cache:
+        return Path(cache)
+    base = config._tmp_path_factory.getbasetemp()  # type: ignore[attr-defined]
+    return Path(tempfile.mkdtemp(prefix="point-runs-", dir=base))
+
+
+def pytest_collection_modifyitems(
+    session: pytest.Session, config: pytest.Config, items: list[pytest.Item]
+) -> None:
+    """Start the point-env trainings as soon as a collected test needs them: they run in the
+    background (at a lowered priority) beside the tests that come before the learning tests."""
+    if config.option.collectonly:
+        return
+    if any("point_runs" in getattr(item, "fixturenames", ()) for item in items):
+        from tests.trained import Training
+
+        _training["job"] = Training(_root(config))
+
+
+def pytest_sessionfinish(session: pytest.Session, exitstatus: int) -> None:
+    job = _training.pop("job", None)
+    if job is not None:
+        job.cancel()
+
+
+@pytest.fixture(scope="session")
+def point_runs(pytestconfig: pytest.Config) -> dict[str, Any]:
+    """The trained point-env runs of :mod:`tests.trained` (URSA for each seed and DayDreamer),
+    trained once per session in the background from collection on (or reused from
+    ``URSA_TRAINED_POINT_DIR``)."""
+    from tests.trained import Training
+
+    job = _training.get("job") or Training(_root(pytestconfig))
+    _training["job"] = job
+    out = job.result()
+    print(f"\npoint runs in {job.root}: {out['seconds']} s (cached: {out['cached']})")
     return out

@@ -61,6 +61,11 @@ def recipe() -> dict[str, Any]:
     }
 
 
+def _lower_priority() -> None:
+    """Worker initialiser: the trainings run beside the rest of the suite and yield to it."""
+    os.nice(10)
+
+
 def _train(args: tuple[str, str]) -> tuple[str, float]:
     """Worker: train one run and save it; returns (run dir, seconds)."""
     import torch
@@ -79,26 +84,58 @@ def _train(args: tuple[str, str]) -> tuple[str, float]:
     return str(run), time.perf_counter() - start
 
 
+class Training:
+    """The runs of :data:`RUNS` under ``root``, training in the background (two processes at a
+    lowered priority, so that the tests collected beside them keep the CPU they need) unless
+    ``root`` already holds runs of the same recipe; :meth:`result` waits for them."""
+
+    def __init__(self, root: Path) -> None:
+        self.root = root
+        root.mkdir(parents=True, exist_ok=True)
+        self.stamp = root / "recipe.json"
+        self.want = json.loads(json.dumps(recipe()))
+        self.started = time.perf_counter()
+        self._ex: ProcessPoolExecutor | None = None
+        self._jobs: dict[str, Any] = {}
+        if self.cached():
+            return
+        workers = min(len(RUNS), max(1, os.cpu_count() or 1))
+        ctx = multiprocessing.get_context("spawn")
+        self._ex = ProcessPoolExecutor(workers, mp_context=ctx, initializer=_lower_priority)
+        # the slowest (URSA) runs first, the cheaper daydreamer run last
+        self._jobs = {name: self._ex.submit(_train, (str(root), name)) for name in RUNS}
+
+    def cached(self) -> bool:
+        return self.stamp.exists() and json.loads(self.stamp.read_text()).get("recipe") == self.want
+
+    def result(self) -> dict[str, Any]:
+        """Run dirs (plus ``ursa``: the first seed's), seconds per run and whether cached."""
+        runs: dict[str, Path] = {name: self.root / name for name in RUNS}
+        runs["ursa"] = runs[f"ursa-s{SEEDS[0]}"]
+        if self._ex is None:
+            info = json.loads(self.stamp.read_text())
+            return {"runs": runs, "seconds": info["seconds"], "cached": True}
+        try:
+            seconds = {name: job.result()[1] for name, job in self._jobs.items()}
+        finally:
+            self._ex.shutdown(wait=True, cancel_futures=True)
+            self._ex = None
+        seconds["ursa"] = seconds[f"ursa-s{SEEDS[0]}"]
+        seconds["wall"] = time.perf_counter() - self.started
+        self.stamp.write_text(json.dumps({"recipe": self.want, "seconds": seconds}))
+        self._cached = {"runs": runs, "seconds": seconds, "cached": False}
+        return self._cached
+
+    def cancel(self) -> None:
+        if self._ex is not None:
+            self._ex.shutdown(wait=False, cancel_futures=True)
+            self._ex = None
+
+
 def trained_point_runs(root: Path) -> dict[str, Any]:
-    """The runs of :data:`RUNS` under ``root`` (plus ``ursa``: the first seed's), trained now
-    unless ``root`` holds runs of the same recipe. Returns their run dirs and seconds."""
-    root.mkdir(parents=True, exist_ok=True)
-    stamp = root / "recipe.json"
-    want = json.loads(json.dumps(recipe()))
-    runs: dict[str, Path] = {name: root / name for name in RUNS}
-    runs["ursa"] = runs[f"ursa-s{SEEDS[0]}"]
-    if stamp.exists() and json.loads(stamp.read_text()).get("recipe") == want:
-        info = json.loads(stamp.read_text())
-        return {"runs": runs, "seconds": info["seconds"], "cached": True}
-    jobs = [(str(root), name) for name in RUNS]
-    workers = min(len(jobs), max(1, (os.cpu_count() or 1)))
-    ctx = multiprocessing.get_context("spawn")
-    with ProcessPoolExecutor(workers, mp_context=ctx) as ex:
-        done = list(ex.map(_train, jobs))
-    seconds = {name: s for name, (_, s) in zip(RUNS, done, strict=True)}
-    seconds["ursa"] = seconds[f"ursa-s{SEEDS[0]}"]
-    stamp.write_text(json.dumps({"recipe": want, "seconds": seconds}))
-    return {"runs": runs, "seconds": seconds, "cached": False}
+    """The runs of :data:`RUNS` under ``root``, trained now unless cached (see
+    :class:`Training`)."""
+    return Training(root).result()
 
 
 def cli_args(mode: Mode, seed: int = 0) -> list[str]:
