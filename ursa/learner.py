@@ -25,11 +25,9 @@ from __future__ import annotations
 import contextlib
 import copy
 import os
-import tempfile
 import time
 from collections.abc import Iterator, Mapping
 from dataclasses import asdict, dataclass
-from pathlib import Path
 from typing import Any, Protocol
 
 import numpy as np
@@ -51,6 +49,7 @@ from ursa.agent import (
 from ursa.distributions import normal_entropy, tanh_normal_logp, two_hot_loss2, two_hot_mean
 from ursa.learner_config import LearnerConfig
 from ursa.policy import pack_policy_weights
+from ursa.rundir import atomic_write
 from ursa.vae import VAE
 from ursa.world_model import WorldModel
 
@@ -641,18 +640,9 @@ class Learner:
         self.np_rng.bit_generator.state = _np_state_from_plain(state["numpy_rng"])
 
     def save_checkpoint(self, path: str | os.PathLike[str]) -> None:
-        """Write the checkpoint atomically (temp file + rename); torch format, tensors only."""
-        path = Path(path)
-        path.parent.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=path.name + ".", suffix=".tmp")
-        os.close(fd)
-        try:
-            torch.save(self.state_dict(), tmp)
-            os.replace(tmp, path)
-        except BaseException:
-            if os.path.exists(tmp):
-                os.unlink(tmp)
-            raise
+        """Write the checkpoint (:func:`ursa.rundir.atomic_write`); torch format, tensors only."""
+        state = self.state_dict()
+        atomic_write(path, lambda f: torch.save(state, f))
 
     def load_checkpoint(self, path: str | os.PathLike[str]) -> None:
         """Load a checkpoint written by :meth:`save_checkpoint` (``weights_only=True``)."""

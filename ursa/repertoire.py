@@ -20,10 +20,8 @@ See docs/repertoire.md for the algorithm, its complexity and measured speed.
 from __future__ import annotations
 
 import os
-import tempfile
 from collections.abc import Callable
 from dataclasses import dataclass
-from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -39,6 +37,7 @@ from ursa.repertoire_kernels import (
     whiten_row,
     whiten_t,
 )
+from ursa.rundir import atomic_write
 
 
 @dataclass(frozen=True)
@@ -519,21 +518,9 @@ class Repertoire:
         return rep
 
     def save(self, path: str | os.PathLike[str]) -> None:
-        """Write :meth:`state_dict` to ``path`` as npz, atomically (temp file + os.replace)."""
-        path = Path(path)
-        path.parent.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=path.name + ".", suffix=".tmp")
-        try:
-            with os.fdopen(fd, "wb") as f:
-                arrays: dict[str, Any] = {k: np.asarray(v) for k, v in self.state_dict().items()}
-                np.savez(f, **arrays)
-                f.flush()
-                os.fsync(f.fileno())
-            os.replace(tmp, path)
-        except BaseException:
-            if os.path.exists(tmp):
-                os.unlink(tmp)
-            raise
+        """Write :meth:`state_dict` to ``path`` as npz (:func:`ursa.rundir.atomic_write`)."""
+        arrays: dict[str, Any] = {k: np.asarray(v) for k, v in self.state_dict().items()}
+        atomic_write(path, lambda f: np.savez(f, **arrays))
 
     @classmethod
     def load(cls, path: str | os.PathLike[str], bounds: Box | None = None) -> Repertoire:

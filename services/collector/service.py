@@ -38,6 +38,7 @@ from services.common.runtime import ServiceRuntime
 from ursa.config import PREFILL, Config, build_env
 from ursa.pace import PaceGate
 from ursa.policy import Policy
+from ursa.rundir import RunDir, atomic_write
 
 
 def default_collector_id() -> str:
@@ -155,17 +156,14 @@ class Collector:
 
     # ---- setup helpers -------------------------------------------------------------------
     def _next_incarnation(self) -> int:
-        path = self.args.run.dir / "collectors" / f"{self.cid}.json"
-        path.parent.mkdir(parents=True, exist_ok=True)
+        path = RunDir(self.args.run.dir).collector_file(self.cid)
         n = 0
         if path.exists():
             try:
                 n = int(json.loads(path.read_text()).get("incarnation", -1)) + 1
             except (ValueError, OSError):
                 n = 0
-        tmp = path.with_suffix(".tmp")
-        tmp.write_text(json.dumps({"incarnation": n, "started": time.time()}))
-        os.replace(tmp, path)
+        atomic_write(path, json.dumps({"incarnation": n, "started": time.time()}))
         return n
 
     # ---- bus callbacks -------------------------------------------------------------------

@@ -13,6 +13,7 @@ from typing import Any, Literal
 import yaml
 
 from ursa.plain import to_plain
+from ursa.rundir import RunDir, atomic_write
 
 
 @dataclass(frozen=True)
@@ -75,9 +76,5 @@ def config_hash(obj: Any) -> str:
 
 def save_resolved(cfg: Any, run: RunConfig, name: str) -> Path:
     """Write the resolved config of a service to ``<run dir>/config/<name>.yaml``."""
-    path = run.dir / "config" / f"{name}.yaml"
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_suffix(".yaml.tmp")
-    tmp.write_text(yaml.safe_dump({"argv": sys.argv[1:], "config": to_plain(cfg)}, sort_keys=False))
-    os.replace(tmp, path)
-    return path
+    doc = {"argv": sys.argv[1:], "config": to_plain(cfg)}
+    return atomic_write(RunDir(run.dir).config_file(name), yaml.safe_dump(doc, sort_keys=False))

@@ -27,6 +27,8 @@ import sys
 from pathlib import Path
 from typing import IO, Any, Literal, Protocol
 
+from ursa.rundir import RunDir
+
 log = logging.getLogger(__name__)
 
 STEP_AXES: dict[str, tuple[tuple[str, str], ...]] = {
@@ -44,7 +46,7 @@ ROW_AXIS = "rows"
 
 def tensorboard_dir(run_dir: Path) -> Path:
     """The directory to point ``tensorboard --logdir`` at."""
-    return Path(run_dir) / "tensorboard"
+    return RunDir(run_dir).tensorboard
 
 
 def tensorboard_command(run_dir: Path) -> str:
@@ -64,7 +66,7 @@ class JsonlSink:
     """``<run>/metrics/<service>-<id>.jsonl``, appended and flushed per row."""
 
     def __init__(self, run_dir: Path, service: str, sid: str) -> None:
-        self.path = Path(run_dir) / "metrics" / f"{service}-{sid}.jsonl"
+        self.path = RunDir(run_dir).metrics_file(service, sid)
         self.service, self.sid = service, sid
         self._file: IO[str] | None = None
 

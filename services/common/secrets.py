@@ -31,6 +31,7 @@ from typing import Any
 
 from proto.topics import SERVICES, Topics
 from services.common.config import BusConfig, RunConfig
+from ursa.rundir import RunDir
 
 log = logging.getLogger(__name__)
 
@@ -59,7 +60,7 @@ def secrets_dir(bus: BusConfig, run: RunConfig | None) -> Path | None:
     """``bus.secrets`` if set, else ``<run dir>/secrets``; None when neither is known."""
     if bus.secrets:
         return Path(bus.secrets)
-    return None if run is None else run.dir / "secrets"
+    return None if run is None else RunDir(run.dir).secrets
 
 
 def is_loopback(endpoint: str) -> bool:

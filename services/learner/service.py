@@ -41,6 +41,7 @@ from ursa.config import Config, build_env
 from ursa.learner import Learner, SkillSnapshot
 from ursa.pace import default_slack, insert_budget
 from ursa.replay import Replay
+from ursa.rundir import RunDir, atomic_write
 
 CHUNK_FIELDS = ("obs", "action", "reward", "cost", "safe", "features", "skill")
 
@@ -99,8 +100,8 @@ class LearnerService:
         self.replay = Replay(args.replay_capacity)
         self.ledger = IngestLedger()
         self.rng = np.random.default_rng(self.cfg.learner.seed + 1)
-        self.ckpt_dir = args.run.dir / "checkpoints"
-        self.state_path = self.ckpt_dir / "learner_state.json"
+        self.ckpt_dir = RunDir(args.run.dir).checkpoints
+        self.state_path = RunDir(args.run.dir).learner_state
         self.samples = 0
         """Transitions sampled for training so far (for the replay ratio)."""
         self.weights_version = 0
@@ -110,7 +111,7 @@ class LearnerService:
         """Seconds from a chunk's send stamp to its receipt (recent chunks)."""
         self.update_times: deque[float] = deque(maxlen=100)
 
-        self.replay_dir = args.run.dir / "replay"
+        self.replay_dir = RunDir(args.run.dir).replay
         self._restore()
         self.writer = ReplayWriter(self.replay_dir, args.segment_chunks)
 
@@ -151,7 +152,7 @@ class LearnerService:
 
     # ---- persistence -----------------------------------------------------------------------
     def _restore(self) -> None:
-        ckpt = self.ckpt_dir / "learner.pt"
+        ckpt = RunDir(self.args.run.dir).checkpoint
         if ckpt.exists():
             self.learner.load_checkpoint(ckpt)
             state = json.loads(self.state_path.read_text()) if self.state_path.exists() else {}
@@ -169,16 +170,14 @@ class LearnerService:
 
     def checkpoint(self) -> None:
         self.ckpt_dir.mkdir(parents=True, exist_ok=True)
-        self.learner.save_checkpoint(self.ckpt_dir / "learner.pt")
+        self.learner.save_checkpoint(RunDir(self.args.run.dir).checkpoint)
         state = {
             "samples": self.samples,
             "weights_version": self.weights_version,
             "updates": self.learner.updates,
             "stamp": time.time(),
         }
-        tmp = self.state_path.with_suffix(".tmp")
-        tmp.write_text(json.dumps(state))
-        os.replace(tmp, self.state_path)
+        atomic_write(self.state_path, json.dumps(state))
 
     # ---- bus callbacks ---------------------------------------------------------------------
     def _on_chunk(self, msg: pb.TransitionChunk, key: str) -> None:

@@ -41,6 +41,7 @@ from services.common.runtime import ServiceRuntime
 from ursa import bounds
 from ursa.config import Config
 from ursa.repertoire import Repertoire
+from ursa.rundir import RunDir
 
 
 @dataclass(frozen=True)
@@ -70,7 +71,7 @@ class RepertoireService:
         self.learned = self.cfg.feature == "vae"
         self.declared = bounds.declared(self.cfg)
         validate_with(self.cfg)
-        self.path = args.run.dir / "repertoire" / "archive.npz"
+        self.path = RunDir(args.run.dir).archive
         self.lock = threading.Lock()
         self.rep = self._restore()
         self.encoder: Any = None

@@ -16,6 +16,7 @@ from pathlib import Path
 from typing import Any
 
 from ursa.eval.common import jsonable
+from ursa.rundir import RunDir
 
 
 def _common(p: argparse.ArgumentParser, steps: bool = True) -> None:
@@ -260,7 +261,7 @@ def cmd_all(a: argparse.Namespace) -> dict[str, Any]:
     skills = ["--skills", str(a.skills)] if a.skills is not None else []
     todo: list[list[str]] = []
     run_dir, _ = resolve_run_dir(a.run)
-    if run_dir is not None and (run_dir / "metrics").is_dir():
+    if run_dir is not None and RunDir(run_dir).metrics.is_dir():
         todo.append(["curves", a.run, *common])
     if run.policy is not None:
         todo.append(["embedding", a.run, *common, *steps])

@@ -1,6 +1,7 @@
 """Load what an evaluation needs from a run directory: config, policy, repertoire, metrics.
 
-A run directory (``runs/<run_id>/``, written by the services, or by :func:`save_serial_run`)::
+A run directory (``runs/<run_id>/``, written by the services, or by :func:`save_serial_run`;
+layout in :mod:`ursa.rundir`) holds, among others::
 
     config/<service>.yaml         {"argv": [...], "config": {"core": <Config as a plain dict>, ...}}
     checkpoints/learner.pt        Learner.save_checkpoint (+ learner_state.json)
@@ -22,7 +23,6 @@ import dataclasses
 import json
 import os
 import sys
-import tempfile
 import time
 import types
 import typing
@@ -44,10 +44,9 @@ from ursa.learner_config import LearnerConfig
 from ursa.plain import to_plain
 from ursa.policy import Policy
 from ursa.repertoire import Repertoire
+from ursa.rundir import RunDir, atomic_write
 from ursa.serial import SerialConfig, SerialLoop
 
-CHECKPOINT = Path("checkpoints") / "learner.pt"
-ARCHIVE = Path("repertoire") / "archive.npz"
 #: Resolved configs tried in this order (the learner's holds the learner config of the checkpoint).
 CONFIG_PREFERENCE = ("learner", "serial", "repertoire", "evaluator", "collector")
 
@@ -125,11 +124,11 @@ def resolve_run_dir(path: str | os.PathLike[str]) -> tuple[Path | None, Path | N
     a run without checkpoint, a bare checkpoint)."""
     p = Path(path)
     if p.is_dir():
-        ckpt = p / CHECKPOINT
+        ckpt = RunDir(p).checkpoint
         return p, ckpt if ckpt.exists() else None
     if p.is_file():
         for parent in (p.parent, p.parent.parent):
-            if (parent / "config").is_dir():
+            if RunDir(parent).config.is_dir():
                 return parent, p
         return None, p
     raise FileNotFoundError(f"no run directory or checkpoint at {p}")
@@ -137,7 +136,7 @@ def resolve_run_dir(path: str | os.PathLike[str]) -> tuple[Path | None, Path | N
 
 def config_files(run_dir: Path) -> list[Path]:
     """Resolved config files of a run, the preferred one first."""
-    files = sorted((run_dir / "config").glob("*.yaml"))
+    files = sorted(RunDir(run_dir).config.glob("*.yaml"))
 
     def rank(f: Path) -> tuple[int, str]:
         stem = f.stem
@@ -265,8 +264,8 @@ def load_run(path: str | os.PathLike[str], seed: int = 0) -> LoadedRun:
         policy, dims = load_policy(cfg, state, seed=seed)
     repertoire = None
     extra: dict[str, Any] = {}
-    if run_dir is not None and (run_dir / ARCHIVE).exists():
-        repertoire = Repertoire.load(run_dir / ARCHIVE, bounds.declared(cfg).skills)
+    if run_dir is not None and RunDir(run_dir).archive.exists():
+        repertoire = Repertoire.load(RunDir(run_dir).archive, bounds.declared(cfg).skills)
         if (
             policy is not None
             and policy.vae is not None
@@ -297,7 +296,7 @@ def default_out(path: str | os.PathLike[str], out: str | os.PathLike[str] | None
         return Path(out)
     run_dir, ckpt = resolve_run_dir(path)
     base = run_dir if run_dir is not None else Path(ckpt or path).parent
-    return base / "eval"
+    return RunDir(base).eval
 
 
 # --- metrics ---------------------------------------------------------------------------------
@@ -306,7 +305,7 @@ def default_out(path: str | os.PathLike[str], out: str | os.PathLike[str] | None
 def iter_metrics(run_dir: str | os.PathLike[str]) -> Iterator[dict[str, Any]]:
     """Rows of every ``metrics/*.jsonl`` of a run (bad lines skipped: a service killed
     mid-write leaves a partial last line)."""
-    for f in sorted((Path(run_dir) / "metrics").glob("*.jsonl")):
+    for f in sorted(RunDir(run_dir).metrics.glob("*.jsonl")):
         with open(f) as fh:
             for line in fh:
                 line = line.strip()
@@ -461,36 +460,27 @@ def save_serial_run(
 ) -> Path:
     """Write a :class:`SerialLoop`'s state as a run directory (config, checkpoint, archive,
     metrics); returns the run directory."""
-    run = Path(run_dir)
-    (run / "config").mkdir(parents=True, exist_ok=True)
+    run = RunDir(run_dir)
     doc = {"argv": [], "config": {"core": to_plain(cfg), "serial": to_plain(loop.config)}}
-    _atomic_write(run / "config" / "serial.yaml", yaml.safe_dump(doc, sort_keys=False))
-    loop.learner.save_checkpoint(run / CHECKPOINT)
+    atomic_write(run.config_file("serial"), yaml.safe_dump(doc, sort_keys=False))
+    loop.learner.save_checkpoint(run.checkpoint)
     state = {
         "samples": loop.learner.updates * cfg.learner.batch_size * cfg.learner.seq_len,
         "weights_version": loop.policy.version,
         "updates": loop.learner.updates,
         "stamp": time.time(),
     }
-    _atomic_write(run / CHECKPOINT.parent / "learner_state.json", json.dumps(state))
+    atomic_write(run.learner_state, json.dumps(state))
     if loop.repertoire is not None:
-        loop.repertoire.save(run / ARCHIVE)
+        loop.repertoire.save(run.archive)
     if recorder is not None and recorder.rows:
         by_file: dict[str, list[dict[str, Any]]] = {}
         for row in recorder.rows:
             by_file.setdefault(f"{row['service']}-{row['id']}.jsonl", []).append(row)
         for name, rows in by_file.items():
             text = "".join(json.dumps(r) + "\n" for r in rows)
-            _atomic_write(run / "metrics" / name, text)
-    return run
-
-
-def _atomic_write(path: Path, text: str) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=path.name + ".", suffix=".tmp")
-    with os.fdopen(fd, "w") as f:
-        f.write(text)
-    os.replace(tmp, path)
+            atomic_write(run.metrics / name, text)
+    return run.root
 
 
 __all__ = [
