@@ -5,12 +5,18 @@ snapshots and stats without a bus. Status codes: 422 for any invalid input (with
 FastAPI's validation-error shape), 404 for a skill id that is not in the repertoire, 503 when a
 peer is missing (no snapshot yet, no evaluator alive, the repertoire or evaluator not
 answering). A client's mistake never gets a 500.
+
+The OpenAPI schema states every bound the routes enforce, so a schema-valid request is never a
+422: the request models are built per app from the config (skill dimension and box, damages,
+maximum steps and samples), and :func:`create_app` writes into FastAPI's schema what FastAPI
+cannot (integer bounds as integers, the count and pattern of ``z``).
 """
 
 # No ``from __future__ import annotations`` here: FastAPI must resolve the request models that
 # create_app defines locally (their bounds come from the config).
 
 import math
+import re
 import time
 from typing import Annotated, Any, NoReturn
 
@@ -19,7 +25,15 @@ from fastapi import FastAPI, HTTPException, Path, Query, Request
 from fastapi.exception_handlers import http_exception_handler
 from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import (
+    AfterValidator,
+    BaseModel,
+    ConfigDict,
+    Discriminator,
+    Field,
+    Tag,
+    WithJsonSchema,
+)
 from starlette.exceptions import HTTPException as StarletteHTTPException
 
 from proto import codec
@@ -27,6 +41,7 @@ from proto import ursa_pb2 as pb
 from services.api import models as m
 from services.api.state import ApiState
 from services.dashboard.live import SnapshotView, StatsEntry, finite
+from ursa.bounds import Box
 from ursa.kde import kde_sample
 
 SERVICES = ("repertoire", "learner", "evaluator", "dashboard", "api")
@@ -40,6 +55,9 @@ The API is its own process (``python -m services.api``): it keeps the latest rep
 snapshot and stats from the Zenoh bus, answers reads from them, and forwards
 ``POST /skills/sample`` to the repertoire's sample queryable and ``POST /evaluate`` to the
 evaluator's queryable. 422: invalid input; 404: unknown skill; 503: a peer is missing.
+
+This schema states every bound the API enforces, from the run's config (skill dimension and
+box, damages, ranges): a request valid against it is never answered 422.
 """
 
 
@@ -74,29 +92,123 @@ def jsonable_array(a: np.ndarray) -> Any:
     return a.tolist()
 
 
-_NUM = r"\s*[-+]?(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?\s*"
-Z_PATTERN = f"^{_NUM}(,{_NUM})*$"
-"""One ``z`` parameter: comma-separated decimal numbers."""
+_NUM = r" *[-+]?([0-9]{1,100}(\.[0-9]*)?|\.[0-9]+)([eE](-[0-9]{1,3}|\+?[0-9]{1,2}))? *"
+"""One coordinate of ``z``: a decimal number, at most 100 digits before the point and an exponent
+of at most 99, so that it is always finite (below 1e200). ASCII digits and spaces only (JSON
+Schema's ``\\d`` and ``\\s`` are ASCII, Python's are not)."""
+Z_MAX_LENGTH = 4096
+"""Longest value of one ``z`` parameter."""
+_ONE = re.compile(_NUM)
+_MANY = re.compile(f"{_NUM}(,{_NUM})*")
 
 
-def parse_z(values: list[str]) -> np.ndarray:
-    """``["0.1,0.2", "0.3"]`` -> [0.1, 0.2, 0.3]; raises a 422 with the reason."""
-    out: list[float] = []
+def z_schema(dim: int | None) -> dict[str, Any]:
+    """The JSON Schema of ``z`` in ``/skills/nearest``: ``dim`` coordinates, either as ``dim``
+    repeated values (``z=0.1&z=0.2``) or as one comma-separated value (``z=0.1,0.2``)."""
+
+    def strings(pattern: str, n_lo: int, n_hi: int | None) -> dict[str, Any]:
+        out: dict[str, Any] = {
+            "type": "array",
+            "items": {"type": "string", "pattern": f"^{pattern}$", "maxLength": Z_MAX_LENGTH},
+            "minItems": n_lo,
+        }
+        if n_hi is not None:
+            out["maxItems"] = n_hi
+        return out
+
+    if dim is None:  # unknown until a snapshot arrives: any count, checked then
+        return strings(f"{_NUM}(,{_NUM})*", 1, None)
+    repeated = strings(_NUM, dim, dim)
+    if dim == 1:
+        return repeated
+    return {"anyOf": [repeated, strings(f"{_NUM}(,{_NUM}){{{dim - 1}}}", 1, 1)]}
+
+
+def parse_z(values: list[str], dim: int | None) -> np.ndarray:
+    """``["0.1,0.2"]`` or ``["0.1", "0.2"]`` -> [0.1, 0.2], exactly what :func:`z_schema` states;
+    raises a 422 with the reason."""
+    single = True
     for v in values:
-        for part in v.split(","):
-            p = part.strip()
-            try:
-                x = float(p)
-            except ValueError:
-                invalid(("query", "z"), f"{p!r} is not a number", v)
-            if not math.isfinite(x):
-                invalid(("query", "z"), f"{p!r} is not finite", v)
-            out.append(x)
-    if not out:
-        invalid(("query", "z"), "no coordinates given", values)
-    if len(out) > m.MAX_DIM:
+        if _ONE.fullmatch(v) is None:
+            single = False
+            if _MANY.fullmatch(v) is None:
+                invalid(
+                    ("query", "z"), f"{v!r} is not a comma-separated list of decimal numbers", v
+                )
+    out = [float(p) for v in values for p in v.split(",")]
+    if dim is not None:
+        if len(out) != dim:
+            invalid(("query", "z"), f"z has {len(out)} coordinates, the skills have {dim}", values)
+        if len(values) != 1 and not single:
+            invalid(
+                ("query", "z"),
+                f"give z as one comma-separated value or as {dim} repeated values, not a mix",
+                values,
+            )
+    elif len(out) > m.MAX_DIM:
         invalid(("query", "z"), f"{len(out)} coordinates, at most {m.MAX_DIM}", values)
     return np.asarray(out)
+
+
+def _float32_inside(lo: float, hi: float) -> tuple[float, float]:
+    """[lo, hi] shrunk to float32 endpoints: the API sends skills as float32, so a value inside
+    these bounds stays inside [lo, hi] once rounded (the evaluator checks the float32 value)."""
+    lo32, hi32 = np.float32(lo), np.float32(hi)
+    if float(lo32) < lo:
+        lo32 = np.nextafter(lo32, np.float32(np.inf))
+    if float(hi32) > hi:
+        hi32 = np.nextafter(hi32, np.float32(-np.inf))
+    return float(lo32), float(hi32)
+
+
+def coordinates_metadata(
+    dim: int | None, box: Box | None
+) -> tuple[Any, AfterValidator, WithJsonSchema]:
+    """What makes ``list[Coordinate]`` a skill given by coordinates: ``dim`` finite floats
+    (1..MAX_DIM when the dimension is unknown), each inside ``box``, and a JSON Schema that says
+    so (``prefixItems`` with each coordinate's bounds)."""
+    if box is not None and (dim is None or box.dim != dim):
+        box = None
+    n_lo, n_hi = (1, m.MAX_DIM) if dim is None else (dim, dim)
+    bounds = (
+        None
+        if box is None
+        else [_float32_inside(lo, hi) for lo, hi in zip(box.low, box.high, strict=True)]
+    )
+    schema: dict[str, Any] = {"type": "array", "minItems": n_lo, "maxItems": n_hi}
+    if bounds is None:
+        schema["items"] = {"type": "number"}
+    else:
+        schema["prefixItems"] = [
+            {"type": "number", "minimum": lo, "maximum": hi} for lo, hi in bounds
+        ]
+        schema["items"] = False
+
+    def in_box(z: list[float]) -> list[float]:
+        for i, (x, (lo, hi)) in enumerate(zip(z, bounds or (), strict=False)):
+            if not lo <= x <= hi:
+                raise ValueError(
+                    f"coordinate {i} = {x!r} is outside [{lo:g}, {hi:g}], the run's skill box"
+                )
+        return z
+
+    return Field(min_length=n_lo, max_length=n_hi), AfterValidator(in_box), WithJsonSchema(schema)
+
+
+def _exact_integer_bounds(schema: Any) -> None:
+    """FastAPI's OpenAPI model writes the bounds of body fields as floats (4096.0); write those
+    of integer fields as the integers they are."""
+    if isinstance(schema, dict):
+        if schema.get("type") == "integer":
+            for key in ("minimum", "maximum", "exclusiveMinimum", "exclusiveMaximum"):
+                v = schema.get(key)
+                if isinstance(v, float) and v.is_integer():
+                    schema[key] = int(v)
+        for v in schema.values():
+            _exact_integer_bounds(v)
+    elif isinstance(schema, list):
+        for v in schema:
+            _exact_integer_bounds(v)
 
 
 def create_app(state: ApiState) -> FastAPI:
@@ -107,9 +219,22 @@ def create_app(state: ApiState) -> FastAPI:
         503: {"model": m.Error, "description": "A peer is missing"}
     }
 
+    dim = state.skill_dim
+    coord_len, coord_box, coord_schema = coordinates_metadata(dim, state.skill_box)
+    damages = tuple(state.damages)
+
+    def known_damage(d: str) -> str:
+        if d not in damages:
+            named = ", ".join(repr(x) for x in damages if x)
+            raise ValueError(f"unknown damage {d!r}; one of: {named} (or null)")
+        return d
+
+    def skill_kind(v: Any) -> str:
+        return "coordinates" if isinstance(v, list) else "id"
+
     class SampleRequest(BaseModel):
         model_config = ConfigDict(extra="forbid", strict=True)
-        n: int = Field(
+        n: m.Integer = Field(
             1,
             ge=1,
             le=state.max_sample,
@@ -119,16 +244,42 @@ def create_app(state: ApiState) -> FastAPI:
 
     class EvaluateRequest(BaseModel):
         model_config = ConfigDict(extra="forbid", strict=True)
-        skill: Annotated[int, Field(ge=0, le=m.MAX_SEED)] | m.SkillVector = Field(
-            description="A skill id from the repertoire, or coordinates in skill space (D,)"
+        skill: Annotated[
+            Annotated[m.Seed, Tag("id")]
+            | Annotated[list[m.Coordinate], coord_len, coord_box, coord_schema, Tag("coordinates")],
+            Discriminator(skill_kind),
+        ] = Field(
+            description="A skill id from the repertoire (0..2**53-1), or coordinates in skill "
+            "space (D,), each inside the run's skill box"
         )
-        steps: int = Field(
+        steps: m.Integer = Field(
             250, ge=1, le=state.max_eval_steps, description="Control steps to run the skill for"
         )
-        damage: str | None = Field(
-            None, max_length=64, description="Damage scenario (A1); null/'none': intact"
-        )
+        damage: (
+            Annotated[
+                str,
+                AfterValidator(known_damage),
+                WithJsonSchema({"type": "string", "enum": list(damages)}),
+            ]
+            | None
+        ) = Field(None, description="Damage scenario (A1); null/''/'none': intact")
         seed: m.Seed | None = Field(None, description="Seed of the environment")
+
+    base_openapi = app.openapi
+
+    def openapi() -> dict[str, Any]:
+        """FastAPI's schema with the bounds it cannot write itself: integer bounds as integers,
+        and ``z`` of ``/skills/nearest`` with its count and per-value pattern."""
+        if app.openapi_schema is None:
+            schema = base_openapi()
+            _exact_integer_bounds(schema)
+            for p in schema["paths"]["/skills/nearest"]["get"]["parameters"]:
+                if p["name"] == "z":
+                    p["schema"] = {**z_schema(dim), "title": "Z", "description": p["description"]}
+            app.openapi_schema = schema
+        return app.openapi_schema
+
+    app.openapi = openapi  # type: ignore[method-assign]
 
     def need_snapshot() -> SnapshotView:
         snap = live.latest_snapshot()
@@ -180,19 +331,21 @@ def create_app(state: ApiState) -> FastAPI:
     @app.get("/skills/nearest", response_model=m.NearestReply, responses=e503, tags=["skills"])
     def nearest(
         z: Annotated[
-            list[Annotated[str, Field(pattern=Z_PATTERN, max_length=4096)]],
+            list[Annotated[str, Field(max_length=Z_MAX_LENGTH)]],
             Query(
-                description="Coordinates: comma-separated floats (z=0.1,0.2) or "
-                "repeated (z=0.1&z=0.2)"
+                description="The D coordinates: one comma-separated value (z=0.1,0.2) or D "
+                "repeated values (z=0.1&z=0.2)"
             ),
         ],
         k: Annotated[int, Query(ge=1, le=100, description="How many neighbours")] = 1,
     ) -> m.NearestReply:
         """The k skills nearest z in the repertoire's Mahalanobis metric (Σ of the snapshot)."""
-        q = parse_z(z)
+        q = parse_z(z, dim)
         snap = need_snapshot()
-        if len(q) != snap.dim:
+        if dim is None and len(q) != snap.dim:
             invalid(("query", "z"), f"z has {len(q)} coordinates, the skills have {snap.dim}", z)
+        if len(q) != snap.dim:
+            unavailable(f"the snapshot's skills have dimension {snap.dim}, the run's {dim}")
         rows, dist = snap.nearest(q, k)
         return m.NearestReply(
             query=q.tolist(),
@@ -372,20 +525,14 @@ def create_app(state: ApiState) -> FastAPI:
             skill_id, target = body.skill, np.asarray(snap.skills[row])
         else:
             target = np.asarray(body.skill, np.float64)
-            dim = snap.dim if snap is not None else state.skill_dim
-            if dim is not None and len(target) != dim:
+            if dim is None and snap is not None and len(target) != snap.dim:
+                # no config: the snapshot's dimension is the only one known
                 invalid(
                     ("body", "skill"),
-                    f"skill has {len(target)} coordinates, the skills have {dim}",
+                    f"skill has {len(target)} coordinates, the skills have {snap.dim}",
                     body.skill,
                 )
         damage = body.damage or ""
-        if damage not in state.damages:
-            invalid(
-                ("body", "damage"),
-                f"unknown damage {damage!r}; one of: {', '.join(d for d in state.damages if d)}",
-                damage,
-            )
         if state.backend is None:
             unavailable("no bus: evaluations need the evaluator service")
         if not live.alive_ids("evaluator"):

@@ -1,18 +1,34 @@
-"""Request and response bodies of the HTTP API (what ``/docs`` shows)."""
+"""Response bodies of the HTTP API and the types its requests share (what ``/docs`` shows).
+
+The request bodies are built by ``services.api.app.create_app``: their bounds (skill dimension and
+box, damages, maximum steps and samples) come from the run's config."""
 
 from __future__ import annotations
 
 from typing import Annotated, Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, BeforeValidator, Field
 
 MAX_DIM = 64
 """Longest skill vector the API accepts (skills have D = 2..4 in practice)."""
-MAX_SEED = 2**63 - 1
+MAX_SEED = 2**53 - 1
+"""Largest seed or skill id: the largest integer a JSON number (a double) holds exactly, so every
+client reads the same value and the bound written in the OpenAPI schema is exact (2**63 - 1
+becomes 2**63 there, and a validator comparing doubles then accepts seeds the API refuses)."""
+
+
+def integral(v: Any) -> Any:
+    """An integral float (4095.0) as the integer it is: JSON Schema's ``integer`` includes it, so
+    a strict body must too (strings and booleans stay refused)."""
+    if isinstance(v, float) and v.is_integer():
+        return int(v)
+    return v
+
 
 Coordinate = Annotated[float, Field(allow_inf_nan=False)]
-SkillVector = Annotated[list[Coordinate], Field(min_length=1, max_length=MAX_DIM)]
-Seed = Annotated[int, Field(ge=0, le=MAX_SEED)]
+Integer = Annotated[int, BeforeValidator(integral)]
+"""An integer field of a request body (strict, but 12.0 reads as 12)."""
+Seed = Annotated[int, Field(ge=0, le=MAX_SEED), BeforeValidator(integral)]
 
 
 class Error(BaseModel):
@@ -39,12 +55,6 @@ class SkillPage(BaseModel):
     snapshot_version: int
     delta: float | None
     entropy_bound: float | None
-
-
-class SampleRequest(BaseModel):
-    model_config = ConfigDict(extra="forbid", strict=True)
-    n: int = Field(1, ge=1, description="How many skills to draw from the repertoire's KDE")
-    seed: Seed | None = Field(None, description="Seed of the draw (fresh randomness if absent)")
 
 
 class SampleReply(BaseModel):

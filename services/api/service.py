@@ -32,6 +32,7 @@ from services.common.config import BusConfig, RunConfig, save_resolved
 from services.common.runtime import ServiceRuntime
 from services.dashboard.live import LiveState
 from services.evaluator.rollout import allowed_damages
+from ursa.bounds import declared
 from ursa.config import Config
 
 
@@ -83,6 +84,7 @@ class ApiService:
             backend=BusBackend(self.rt, args.bus.router),
             env=args.core.env,
             skill_dim=args.core.skill_dim,
+            skill_box=declared(args.core).samples,
             max_eval_steps=args.max_eval_steps,
             max_sample=args.max_sample,
             eval_timeout_s=args.eval_timeout_s,

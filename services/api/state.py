@@ -14,6 +14,7 @@ from typing import Any, Protocol
 
 from proto import ursa_pb2 as pb
 from services.dashboard.live import LiveState
+from ursa.bounds import Box
 
 
 class Backend(Protocol):
@@ -45,7 +46,11 @@ class ApiState:
     env: str = "point"
     """Environment of the run (which damages exist)."""
     skill_dim: int | None = None
-    """Skill dimension from the config (checked before any snapshot exists)."""
+    """Skill dimension from the config: the length of every skill the OpenAPI schema states and
+    the API accepts (None: unknown, checked against the latest snapshot instead)."""
+    skill_box: Box | None = None
+    """Box of the skills an evaluation may ask for (``ursa.bounds.declared(cfg).samples``, which
+    the evaluator enforces); stated per coordinate in the schema. None: any finite value."""
     max_eval_steps: int = 5000
     """Largest ``steps`` of ``POST /evaluate``."""
     max_sample: int = 4096

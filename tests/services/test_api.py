@@ -17,11 +17,11 @@ import pytest
 import schemathesis
 from fastapi.testclient import TestClient
 from hypothesis import HealthCheck, settings
-from schemathesis.specs.openapi.checks import positive_data_acceptance
 
 from proto import codec
 from proto import ursa_pb2 as pb
 from proto.topics import Topics
+from services.api import models as m
 from services.api.app import create_app
 from services.api.service import ApiArgs, ApiService
 from services.api.state import ApiState
@@ -29,6 +29,8 @@ from services.common.config import RunConfig
 from services.dashboard.live import LiveState
 from tests.services._stack import snapshot_msg, stats_msg
 from tests.stack import running_stack, wait_for
+from ursa.bounds import Box
+from ursa.config import preset
 
 RUN = "test"
 
@@ -94,7 +96,10 @@ class FakeBackend:
 
 def _state(alive: dict[str, float], backend: FakeBackend | None = None, **kw: Any) -> ApiState:
     live = LiveState(RUN, alive=lambda: dict(alive))
-    return ApiState(live=live, backend=backend, skill_dim=2, **kw)
+    # the point env's evaluation box: the arena [-1, 1]² widened by its width on each side
+    return ApiState(
+        live=live, backend=backend, skill_dim=2, skill_box=Box.uniform(2, -3.0, 3.0), **kw
+    )
 
 
 def _alive(*names: str) -> dict[str, float]:
@@ -194,16 +199,20 @@ def test_nearest_uses_the_repertoire_metric(fed: Any) -> None:
     [
         ("z=0.1", "coordinates"),
         ("z=0.1,0.2,0.3", "coordinates"),
-        ("z=a,b", "match pattern"),
-        ("z=0.1,nan", "match pattern"),
-        ("z=inf,1", "match pattern"),
-        ("z=", "match pattern"),
-        ("z=1e999,1", "not finite"),
-        ("z=0.1&z=", "match pattern"),
+        ("z=0.1&z=0.2&z=0.3", "coordinates"),
+        ("z=0.1,0.2&z=0.3", "coordinates"),
+        ("z=a,b", "decimal numbers"),
+        ("z=0.1,nan", "decimal numbers"),
+        ("z=inf,1", "decimal numbers"),
+        ("z=", "decimal numbers"),
+        ("z=1e999,1", "decimal numbers"),
+        ("z=%D9%A3,1", "decimal numbers"),  # a non-ASCII digit: float() reads it, JSON Schema not
+        ("z=0.1%0A,0.2", "decimal numbers"),
+        ("z=0.1&z=", "decimal numbers"),
         ("", "Field required"),
         ("z=0.1,0.2&k=0", "greater"),
         ("z=0.1,0.2&k=101", "less"),
-        ("z=" + ",".join(["1"] * 65), "at most"),
+        ("z=" + ",".join(["1"] * 65), "coordinates"),
     ],
 )
 def test_nearest_rejects_bad_input(fed: Any, query: str, why: str) -> None:
@@ -316,8 +325,10 @@ def test_evaluate_by_id_and_by_coordinates(fed: Any) -> None:
     "body,status,why",
     [
         ({"skill": 9}, 404, "not in the repertoire"),
-        ({"skill": [0.1, 0.2, 0.3]}, 422, "coordinates"),
-        ({"skill": []}, 422, "at least 1"),
+        ({"skill": [0.1, 0.2, 0.3]}, 422, "at most 2 items"),
+        ({"skill": []}, 422, "at least 2 items"),
+        ({"skill": [0.1, 3.5]}, 422, "outside [-3, 3]"),
+        ({"skill": [0.1, None]}, 422, "valid number"),
         ({"skill": 12, "steps": 0}, 422, "greater"),
         ({"skill": 12, "steps": 5001}, 422, "less than or equal to 5000"),
         ({"skill": 12, "damage": "tail"}, 422, "unknown damage"),
@@ -412,17 +423,122 @@ def _no_500(ctx: Any, response: Any, case: Any) -> bool:
     return True
 
 
+def _422_has_a_reason(ctx: Any, response: Any, case: Any) -> bool:
+    """Every 422 says where and why, in FastAPI's validation-error shape."""
+    if response.status_code == 422:
+        detail = response.json()["detail"]
+        assert isinstance(detail, list) and detail, response.text
+        assert all(e.get("loc") and e.get("msg") for e in detail), response.text
+    return True
+
+
 SCHEMA = schemathesis.openapi.from_asgi("/openapi.json", _schemathesis_app())
 
 
 @SCHEMA.parametrize()
 @settings(max_examples=40, deadline=None, derandomize=True, suppress_health_check=list(HealthCheck))
 def test_openapi_property_based_no_server_errors(case: Any) -> None:
-    """schemathesis's checks (status codes and bodies as documented, no 5xx, invalid
-    input rejected) and ours (never a 500), except "schema-valid data is accepted": a
-    skill of the wrong dimension or an unknown damage is valid JSON Schema but a 422 by
-    design (the dimension comes from the live snapshot, not from the spec)."""
-    case.call_and_validate(excluded_checks=[positive_data_acceptance], additional_checks=[_no_500])
+    """Every schemathesis check, "schema-valid data is accepted" included (the schema states
+    every bound the API enforces: the skill dimension and box of the run, the damages, the
+    ranges), and ours: never a 500, and a reason with every 422."""
+    case.call_and_validate(additional_checks=[_no_500, _422_has_a_reason])
+
+
+# ---- every bound: just inside is accepted, just outside is a 422 naming the field ------------
+_BIG = m.MAX_SEED
+_E = {"skill": 12}  # a skill of the fed repertoire
+
+
+@pytest.mark.parametrize(
+    "method,path,inside,outside,field",
+    [
+        ("GET", "/skills", {"offset": 10**9}, {"offset": 10**9 + 1}, "offset"),
+        ("GET", "/skills", {"offset": 0}, {"offset": -1}, "offset"),
+        ("GET", "/skills", {"limit": 1}, {"limit": 0}, "limit"),
+        ("GET", "/skills", {"limit": 1000}, {"limit": 1001}, "limit"),
+        ("GET", f"/skills/{_BIG}", None, None, "skill_id"),  # outside: _BIG + 1 (below)
+        ("GET", "/skills/nearest", {"z": "0.1,0.2", "k": 1}, {"z": "0.1,0.2", "k": 0}, "k"),
+        ("GET", "/skills/nearest", {"z": "0.1,0.2", "k": 100}, {"z": "0.1,0.2", "k": 101}, "k"),
+        ("GET", "/skills/nearest", {"z": ["0.1", "0.2"]}, {"z": ["0.1"]}, "z"),
+        ("GET", "/skills/nearest", {"z": "0.1,0.2"}, {"z": "0.1,0.2,0.3"}, "z"),
+        ("GET", "/skills/nearest", {"z": "1e99,-1e-999"}, {"z": "1e100,1"}, "z"),
+        ("GET", "/skills/nearest", {"z": "9" * 100 + ",1"}, {"z": "9" * 101 + ",1"}, "z"),
+        (
+            "GET",
+            "/skills/nearest",
+            {"z": " " * (4096 - 3) + "1,2"},
+            {"z": " " * (4096 - 2) + "1,2"},
+            "z",
+        ),
+        ("POST", "/skills/sample", {"n": 1}, {"n": 0}, "n"),
+        ("POST", "/skills/sample", {"n": 4096}, {"n": 4097}, "n"),
+        ("POST", "/skills/sample", {"seed": 0}, {"seed": -1}, "seed"),
+        ("POST", "/skills/sample", {"seed": _BIG}, {"seed": _BIG + 1}, "seed"),
+        ("POST", "/evaluate", {**_E, "steps": 1}, {**_E, "steps": 0}, "steps"),
+        ("POST", "/evaluate", {**_E, "steps": 5000}, {**_E, "steps": 5001}, "steps"),
+        ("POST", "/evaluate", {**_E, "seed": 0}, {**_E, "seed": -1}, "seed"),
+        ("POST", "/evaluate", {**_E, "seed": _BIG}, {**_E, "seed": _BIG + 1}, "seed"),
+        ("POST", "/evaluate", {"skill": 0}, {"skill": -1}, "skill"),
+        ("POST", "/evaluate", {"skill": _BIG}, {"skill": _BIG + 1}, "skill"),
+        ("POST", "/evaluate", {"skill": [3.0, -3.0]}, {"skill": [3.0000001, -3.0]}, "skill"),
+        ("POST", "/evaluate", {"skill": [-3.0, 3.0]}, {"skill": [-3.0, 3.0000001]}, "skill"),
+        ("POST", "/evaluate", {"skill": [0.0, 0.0]}, {"skill": [0.0]}, "skill"),
+        ("POST", "/evaluate", {"skill": [0.0, 0.0]}, {"skill": [0.0, 0.0, 0.0]}, "skill"),
+        ("POST", "/evaluate", {**_E, "damage": "front_hip"}, {**_E, "damage": "tail"}, "damage"),
+        ("POST", "/evaluate", {**_E, "damage": None}, {**_E, "damage": 3}, "damage"),
+    ],
+)
+def test_every_bound_just_inside_and_just_outside(
+    fed: Any, method: str, path: str, inside: Any, outside: Any, field: str
+) -> None:
+    """Just inside a bound is accepted (not 422: a 404 for an id that is valid but absent),
+    just outside is a 422 whose reason names the field."""
+    client, *_ = fed
+
+    def call(arg: Any, p: str = path) -> Any:
+        if method == "GET":
+            return client.get(p, params=arg)
+        return client.post(p, json=arg)
+
+    if field == "skill_id":
+        r_in, r_out = client.get(f"/skills/{_BIG}"), client.get(f"/skills/{_BIG + 1}")
+    else:
+        r_in, r_out = call(inside), call(outside)
+    assert r_in.status_code in (200, 404), (inside, r_in.json())
+    assert r_out.status_code == 422, (outside, r_out.json())
+    detail = r_out.json()["detail"]
+    assert any(field in e["loc"] and e["msg"] for e in detail), detail
+
+
+def test_the_schema_states_the_bounds(fed: Any) -> None:
+    """The bounds the test above probes are the ones the OpenAPI schema states."""
+    client, *_ = fed
+    spec = client.get("/openapi.json").json()
+    body = spec["components"]["schemas"]
+    ev = body["EvaluateRequest"]["properties"]
+    skill_id, coords = ev["skill"]["oneOf"]
+    assert skill_id == {"type": "integer", "minimum": 0, "maximum": _BIG}
+    assert coords["minItems"] == coords["maxItems"] == 2 and coords["items"] is False
+    assert coords["prefixItems"] == [{"type": "number", "minimum": -3.0, "maximum": 3.0}] * 2
+    assert (ev["steps"]["minimum"], ev["steps"]["maximum"]) == (1, 5000)
+    assert ev["damage"]["anyOf"][0]["enum"] == ["", "none", "front_hip"]
+    assert ev["seed"]["anyOf"][0] == {"type": "integer", "minimum": 0, "maximum": _BIG}
+    n = body["SampleRequest"]["properties"]["n"]
+    assert (n["minimum"], n["maximum"]) == (1, 4096) and isinstance(n["maximum"], int)
+    params = {
+        (path, p["name"]): p["schema"]
+        for path, ops in spec["paths"].items()
+        for op in ops.values()
+        for p in op.get("parameters", [])
+    }
+    repeated, joined = params[("/skills/nearest", "z")]["anyOf"]
+    assert repeated["minItems"] == repeated["maxItems"] == 2
+    assert joined["minItems"] == joined["maxItems"] == 1 and joined["items"]["maxLength"] == 4096
+    assert params[("/skills/{skill_id}", "skill_id")]["maximum"] == _BIG
+    assert (params[("/skills", "limit")]["minimum"], params[("/skills", "limit")]["maximum"]) == (
+        1,
+        1000,
+    )
 
 
 # ---- over a real router ----------------------------------------------------------------------
@@ -433,7 +549,9 @@ def test_api_over_a_real_router(tmp_path: Path) -> None:
         st.start_router()
         peer = st.session()
         t = st.topics
-        svc = ApiService(ApiArgs(bus=st.bus, run=RunConfig(run_id=RUN, root=st.runs)))
+        # the point env's config: its snapshots (D = 2) pass the API's semantic check at decode
+        core = preset("tiny", env="point")
+        svc = ApiService(ApiArgs(core=core, bus=st.bus, run=RunConfig(run_id=RUN, root=st.runs)))
         handles: list[Any] = []
         try:
             with TestClient(svc.app) as client:
@@ -502,6 +620,16 @@ def test_api_over_a_real_router(tmp_path: Path) -> None:
                 }
                 r = client.post("/evaluate", json={"skill": 3, "steps": 20})
                 assert r.status_code == 200 and r.json()["steps"] == 20
+                # the schema states the config's skill box (point env: [-3, 3]²)
+                spec = client.get("/openapi.json").json()
+                coords = spec["components"]["schemas"]["EvaluateRequest"]["properties"]["skill"]
+                assert coords["oneOf"][1]["prefixItems"][1] == {
+                    "type": "number",
+                    "minimum": -3.0,
+                    "maximum": 3.0,
+                }
+                r = client.post("/evaluate", json={"skill": [0.5, 3.5], "steps": 20})
+                assert r.status_code == 422 and "skill box" in _detail(r)
                 h = client.get("/health").json()
                 assert h["peers"]["repertoire"] == ["main"] and h["peers"]["collectors"] == ["c7"]
                 # a malformed snapshot is counted and dropped, never served
