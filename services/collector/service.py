@@ -7,7 +7,7 @@ Queries:     ursa/{run}/repertoire/sample (SkillRequest -> SkillReply), every T 
 Publishes:   ursa/{run}/collector/transitions/{cid} (TransitionChunk, BLOCK)
              ursa/{run}/collector/features/{cid} (SafeFeatures, BLOCK)
              ursa/{run}/collector/stats/{cid} (Stats, may drop)
-Liveliness:  ursa/{run}/alive/collector/{cid}
+Liveliness:  ursa/{run}/alive/collector/{cid}; watches ursa/{run}/alive/learner/* (rate limiter)
 """
 
 from __future__ import annotations
@@ -180,17 +180,23 @@ class Collector:
             float(sc["pace_budget"]),
             int(sc.get("collectors_alive", 1)),
             bool(sc.get("pace_engaged", 0.0)),
-            time.monotonic(),
         )
+
+    def _check_learner(self, now: float) -> None:
+        if now - self._presence_checked >= 0.1:
+            self.gate.learner(bool(self.learner_presence.alive()))
+            self._presence_checked = now
 
     def _wait_for_pace(self, sps: float) -> None:
         """Hold the env while the rate limiter's gate is closed (stats keep flowing)."""
-        if self.gate.open(time.monotonic()):
+        self._check_learner(time.monotonic())
+        if self.gate.open():
             return
         t0 = last = time.monotonic()
-        while not self.rt.stop.is_set() and not self.gate.open(time.monotonic()):
+        while not self.rt.stop.is_set() and not self.gate.open():
             self.rt.stop.wait(0.005)
             now = time.monotonic()
+            self._check_learner(now)
             if now - last >= 1.0 / self.cfg.collector.stats_hz:
                 self._publish_stats(0.0)
                 last = now
@@ -459,6 +465,7 @@ class Collector:
             self._match_listener,
             self.sub_weights,
             self.sub_pace,
+            self.learner_presence,
             self.pub_chunks,
             self.pub_features,
         ):
