@@ -195,7 +195,7 @@ class LearnerConfig:
         """The point-env learning recipe (the learning tests' and ``--preset point``): ``tiny``
         sizes with faster learning rates, 128 imagination starts, a high replay ratio, shorter
         horizons (γ 0.98, cost γ 0.9) so that 3000 updates suffice and the skill constraint
-        enforced at δ/2; docs/learner.md gives the measurements behind each."""
+        enforced at δ/4; docs/learner.md gives the measurements behind each."""
         base = cls.tiny(
             imag_starts=128,
             model_lr=3e-4,
@@ -205,7 +205,7 @@ class LearnerConfig:
             train_ratio=128.0,
             discount=0.98,
             cost_discount=0.9,
-            delta_scale=0.5,
+            delta_scale=0.25,
         )
         return dataclasses.replace(base, **overrides)  # type: ignore[arg-type]
 

@@ -31,4 +31,4 @@ def test_the_learning_tests_train_the_point_preset() -> None:
     # the recipe differs from tiny in rates and horizons, never in code paths or sizes
     tiny = preset("tiny", "point").learner
     assert (cfg.learner.deter, cfg.learner.units) == (tiny.deter, tiny.units)
-    assert cfg.learner.delta_scale == 0.5 and cfg.learner.train_ratio == 128.0
+    assert cfg.learner.delta_scale == 0.25 and cfg.learner.train_ratio == 128.0
