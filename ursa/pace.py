@@ -39,7 +39,7 @@ def insert_budget(
     min_inserts: int = 0,
 ) -> float:
     """Env steps that may still be inserted before ``samples / inserted`` falls below
-    ``train_ratio / (1 + tolerance)``, plus ``slack`` steps (what the learner consumes in a few
+    ``train_ratio / (1 + tolerance / 2)``, plus ``slack`` steps (what the learner consumes in a few
     updates, so that collectors run while it trains); negative when the learner is behind.
 
     The first ``min_inserts`` steps (the learner's prefill) are always allowed; as with
@@ -47,7 +47,10 @@ def insert_budget(
     on, so that the ratio holds over the whole run."""
     if train_ratio <= 0:
         return math.inf
-    return max(float(min_inserts), samples / train_ratio * (1.0 + tolerance) + slack) - inserted
+    # half the tolerance is the limiter's own; the other half absorbs the chunks in flight
+    # (published before the collectors heard the budget, ingested after it was computed)
+    allowed = samples / train_ratio * (1.0 + 0.5 * tolerance) + slack
+    return max(float(min_inserts), allowed) - inserted
 
 
 def default_slack(batch_size: int, seq_len: int, train_ratio: float, updates: int = 4) -> float:
