@@ -68,7 +68,8 @@ def main() -> None:
                     "--seed",
                     str(i),
                 )
-            w = StatsWatcher(st.session(), st.topics)
+            session = st.session()  # kept: a dropped zenoh session closes
+            w = StatsWatcher(session, st.topics)
 
             def updates() -> float:
                 ls = w.get("learner", "main")
@@ -89,19 +90,20 @@ def main() -> None:
             print(f"{'':<28}{'value':>10}")
             print(f"{'updates/s (stack)':<28}{rate:>10.3f}")
             print(f"{'updates/s (learner alone)':<28}{ref:>10.3f}")
-            print(f"{'replay ratio':<28}{sc['replay_ratio']:>10.2f}")
+            print(f"{'replay ratio':<28}{sc['replay_ratio_paced']:>10.2f}")
             print(f"{'target ratio':<28}{sc['train_ratio_limit']:>10.2f}")
             print(f"{'chunk latency p99 (ms)':<28}{sc.get('chunk_latency_p99_ms', -1):>10.1f}")
             for i, c in enumerate(waited):
                 if c is not None:
                     print(f"{f'collector c{i} waited (s)':<28}{c.scalars['pace_wait_s']:>10.1f}")
             print(
-                f"RESULT updates_per_s={rate:.3f} replay_ratio={sc['replay_ratio']:.2f} "
+                f"RESULT updates_per_s={rate:.3f} replay_ratio={sc['replay_ratio_paced']:.2f} "
                 f"target_ratio={sc['train_ratio_limit']:.2f} "
                 f"chunk_latency_p99_ms={sc.get('chunk_latency_p99_ms', float('nan')):.1f} "
                 f"stack_ratio={rate / ref:.2f}"
             )
             w.close()
+            session.close()
         finally:
             st.stop_all()
 

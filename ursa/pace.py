@@ -12,10 +12,12 @@ when it is spent, until the learner's next message raises it.
 - ``mode="wait"`` (simulation): collectors wait when the budget is spent.
 - ``mode="free"`` (a real robot, which cannot pause): collectors never wait; the learner then
   reports the ratio it reaches.
-- The learner's prefill is collected at full speed; then collectors wait until the learner has
-  caught up on it. A learner that is done (``--max-updates``), cannot train (no repertoire
-  snapshot after its prefill) or is missing (no liveliness token) never holds a collector: the
-  gate opens, and the collector keeps its bounded backlog as without a limiter.
+- The learner's prefill is collected at full speed; from the learner process's first update on,
+  the ratio is held over the steps inserted and sampled since then (the learner passes those
+  counts), so data that arrived while no learner trained is not owed. A learner that is done
+  (``--max-updates``), cannot train (no repertoire snapshot after its prefill) or is missing
+  (no liveliness token) never holds a collector: the gate opens, and the collector keeps its
+  bounded backlog as without a limiter.
 
 The budget is a function of the learner's counters, which its checkpoint and replay restore,
 so the limit resumes where it stopped after a restart.

@@ -15,6 +15,7 @@ Files:       <run>/replay/segment-*.mcap, <run>/checkpoints/learner.pt + learner
 from __future__ import annotations
 
 import json
+import math
 import os
 import queue
 import threading
@@ -104,6 +105,8 @@ class LearnerService:
         self.state_path = RunDir(args.run.dir).learner_state
         self.samples = 0
         """Transitions sampled for training so far (for the replay ratio)."""
+        self._pace_base: tuple[int, int] | None = None
+        """(inserted, samples) at this process's first update: the rate limiter's origin."""
         self.weights_version = 0
         self.metrics: dict[str, float] = {}
         self.lags: deque[int] = deque(maxlen=200)
@@ -293,6 +296,8 @@ class LearnerService:
             batch = self.replay.sample(c.batch_size, c.seq_len, self.rng)
         before = self.learner.vae_version
         metrics = self.learner.train_step(batch, snap)
+        if self._pace_base is None:
+            self._pace_base = (self.ledger.total_steps, self.samples)
         self.samples += c.batch_size * c.seq_len
         self.update_times.append(time.perf_counter() - t0)
         self.metrics = metrics
@@ -333,21 +338,33 @@ class LearnerService:
 
     def pace(self) -> tuple[float, bool]:
         """The rate limiter's budget (env steps all collectors may still insert) and whether it
-        is engaged (training has started and can go on); see ``ursa.pace``."""
+        is engaged; see ``ursa.pace``. Before this process's first update the collectors may
+        fill the prefill; from its first update on, the ratio is held over what was inserted
+        and sampled since then (data that arrived while no learner trained is not owed)."""
         a, c, cc = self.args, self.cfg.learner, self.cfg.collector
-        prefill = len(self.replay) < a.min_replay
-        engaged = not (a.max_updates and self.learner.updates >= a.max_updates) and (
-            prefill or not c.uses_skills or self.skill_snapshot() is not None
-        )
+        if a.max_updates and self.learner.updates >= a.max_updates:
+            return math.inf, False
+        slack = default_slack(c.batch_size, c.seq_len, c.train_ratio)
+        if self._pace_base is None:
+            # not training yet: the prefill may be collected; past it, a learner that cannot
+            # train (no repertoire snapshot) holds nobody
+            return float(a.min_replay - len(self.replay)), len(self.replay) < a.min_replay
+        inserted0, samples0 = self._pace_base
         budget = insert_budget(
-            self.ledger.total_steps,
-            self.samples,
+            self.ledger.total_steps - inserted0,
+            self.samples - samples0,
             c.train_ratio,
             cc.pace_tolerance,
-            default_slack(c.batch_size, c.seq_len, c.train_ratio),
-            min_inserts=a.min_replay,
+            slack,
         )
-        return budget, engaged
+        return budget, True
+
+    def paced_ratio(self) -> float:
+        """Replay ratio since this process's first update (the ratio the limiter holds)."""
+        if self._pace_base is None:
+            return 0.0
+        inserted0, samples0 = self._pace_base
+        return (self.samples - samples0) / max(self.ledger.total_steps - inserted0, 1)
 
     def publish_stats(self) -> None:
         c = self.cfg.learner
@@ -361,6 +378,7 @@ class LearnerService:
             "updates": self.learner.updates,
             "policy_version": self.weights_version,
             "replay_ratio": self.samples / inserted,
+            "replay_ratio_paced": self.paced_ratio(),
             "train_ratio_limit": c.train_ratio,
             "pace_budget": budget if np.isfinite(budget) else 1e12,
             "pace_engaged": float(engaged and self.cfg.collector.pace == "wait"),

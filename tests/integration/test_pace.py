@@ -31,7 +31,8 @@ def _stack(st, pace: str) -> None:  # type: ignore[no-untyped-def]
 def test_waiting_collectors_keep_the_replay_ratio_at_its_target(tmp_path: Path) -> None:
     with running_stack(tmp_path, run_id="pace") as st:
         _stack(st, "wait")
-        watcher = StatsWatcher(st.session(), st.topics)
+        session = st.session()  # kept: a dropped zenoh session closes
+        watcher = StatsWatcher(session, st.topics)
         try:
 
             def trained(n: float) -> bool:
@@ -45,7 +46,7 @@ def test_waiting_collectors_keep_the_replay_ratio_at_its_target(tmp_path: Path) 
                 wait_for(functools.partial(trained, n), 120, f"{n} updates", every=0.5)
                 ls = watcher.get("learner", "main")
                 assert ls is not None
-                ratios.append(ls.scalars["replay_ratio"])
+                ratios.append(ls.scalars["replay_ratio_paced"])
             waited = [watcher.get("collector", f"c{i}") for i in range(2)]
             print(
                 f"\nreplay ratio {ratios} (target {TARGET}); collectors waited "
@@ -72,12 +73,14 @@ def test_waiting_collectors_keep_the_replay_ratio_at_its_target(tmp_path: Path) 
             wait_for(resumed, 60, "collectors stepping again without a learner")
         finally:
             watcher.close()
+            session.close()
 
 
 def test_free_collectors_never_wait(tmp_path: Path) -> None:
     with running_stack(tmp_path, run_id="free") as st:
         _stack(st, "free")
-        watcher = StatsWatcher(st.session(), st.topics)
+        session = st.session()  # kept: a dropped zenoh session closes
+        watcher = StatsWatcher(session, st.topics)
         try:
 
             def trained() -> bool:
@@ -94,3 +97,4 @@ def test_free_collectors_never_wait(tmp_path: Path) -> None:
             assert ls.scalars["replay_ratio"] < 0.5 * TARGET, ls.scalars["replay_ratio"]
         finally:
             watcher.close()
+            session.close()
