@@ -5,8 +5,10 @@ from __future__ import annotations
 
 import json
 import struct
+import time
 from collections.abc import Iterator
 from pathlib import Path
+from typing import Any
 
 import pytest
 from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
@@ -110,17 +112,28 @@ def test_wandb_offline_run_holds_the_rows(tmp_path: Path) -> None:
     m.write(1.0, {"updates": 10.0, "ingested_steps": 100.0, "wm/loss": 2.0}, {})
     m.write(2.0, {"updates": 30.0, "ingested_steps": 250.0, "wm/loss": 1.5}, {})
     m.close()
-    (f,) = (tmp_path / "wandb").glob("offline-run-*/run-*.wandb")
-    history, runs = [], []
-    for r in _wandb_records(f):
-        kind = r.WhichOneof("record_type")  # type: ignore[attr-defined]
-        if kind == "history":
-            items = r.history.item  # type: ignore[attr-defined]
-            history.append(
-                {i.key or ".".join(i.nested_key): json.loads(i.value_json) for i in items}
-            )
-        elif kind == "run":
-            runs.append(r.run)  # type: ignore[attr-defined]
+
+    def read() -> tuple[list[dict[str, Any]], list[Any]]:
+        (f,) = (tmp_path / "wandb").glob("offline-run-*/run-*.wandb")
+        history, runs = [], []
+        for r in _wandb_records(f):
+            kind = r.WhichOneof("record_type")  # type: ignore[attr-defined]
+            if kind == "history":
+                items = r.history.item  # type: ignore[attr-defined]
+                history.append(
+                    {i.key or ".".join(i.nested_key): json.loads(i.value_json) for i in items}
+                )
+            elif kind == "run":
+                runs.append(r.run)  # type: ignore[attr-defined]
+        return history, runs
+
+    # W&B's service process writes the offline file on its own schedule: under load the
+    # history records land a moment after finish() returns
+    deadline = time.monotonic() + 60.0
+    history, runs = read()
+    while len(history) < 2 and time.monotonic() < deadline:
+        time.sleep(0.5)
+        history, runs = read()
     assert [(h["updates"], h["ingested_steps"], h["wm/loss"]) for h in history] == [
         (10, 100, 2.0),
         (30, 250, 1.5),

@@ -19,11 +19,14 @@ from ursa.kde import whitening_matrix
 pytestmark = pytest.mark.slow
 
 
-def _features(seed: int, n: int, center: tuple[float, float]) -> bytes:
-    pts = np.random.default_rng(seed).normal(center, 0.2, (n, 2)).astype(np.float32)
+def _features(cid: str, seed: int, n: int, center: tuple[float, float]) -> bytes:
+    # positions inside the point env's arena, sent as a collector: the repertoire refuses
+    # features outside the declared box and from anyone but a collector (ursa.bounds)
+    pts = np.random.default_rng(seed).normal(center, 0.1, (n, 2)).clip(-0.95, 0.95)
+    pts = pts.astype(np.float32)
     msg = pb.SafeFeatures(
-        header=codec.header("test", f"client/{seed}"),
-        collector_id=f"client{seed}",
+        header=codec.header("test", f"collector/{cid}"),
+        collector_id=cid,
         features=codec.to_array(pts),
     )
     return codec.encode(msg)
@@ -41,8 +44,8 @@ def test_two_clients_commit_sample_and_restore_after_sigkill(tmp_path: Path) -> 
         wait_for(lambda: _snapshot(s1, st.topics), 60, "the repertoire to answer")
         # two clients, two separate clusters of safe features
         for i in range(4):
-            s1.put(st.topics.features("client1"), _features(10 + i, 30, (-1.0, 0.0)))
-            s2.put(st.topics.features("client2"), _features(20 + i, 30, (1.0, 0.0)))
+            s1.put(st.topics.features("client1"), _features("client1", 10 + i, 30, (-0.5, 0.0)))
+            s2.put(st.topics.features("client2"), _features("client2", 20 + i, 30, (0.5, 0.0)))
 
         def full() -> pb.RepertoireSnapshot | None:
             snap = _snapshot(s1, st.topics)
