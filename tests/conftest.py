@@ -24,6 +24,7 @@ def _root(config: pytest.Config) -> Path:
     return Path(tempfile.mkdtemp(prefix="point-runs-", dir=base))
 
 
+@pytest.hookimpl(trylast=True)  # after -m/-k deselection: only the tests that will run count
 def pytest_collection_modifyitems(
     session: pytest.Session, config: pytest.Config, items: list[pytest.Item]
 ) -> None:

@@ -127,8 +127,13 @@ class Training:
         return self._cached
 
     def cancel(self) -> None:
+        """Stop trainings nobody waited for (the session ended first): their workers are
+        terminated, so that the interpreter does not wait for them at exit."""
         if self._ex is not None:
+            procs = list(getattr(self._ex, "_processes", {}).values())
             self._ex.shutdown(wait=False, cancel_futures=True)
+            for proc in procs:
+                proc.terminate()
             self._ex = None
 
 
