@@ -9,7 +9,7 @@ INNER = """
 import pytest
 
 def test_runs():
-    assert True
+    pass  # a passing inner test: strict mode must leave it passing
 
 def test_skips_in_body():
     pytest.skip("no chromium here")
