@@ -44,6 +44,18 @@ def pytest_sessionfinish(session: pytest.Session, exitstatus: int) -> None:
         job.cancel()
 
 
+@pytest.fixture(autouse=True)
+def _process_validator() -> Any:
+    """Each test starts with the process-wide bus validator of a process that knows no run: a
+    service built in-process (API, dashboard) sets it to its run's bounds, which would refuse
+    the messages of a later test's run (another env, other widths)."""
+    from services.common import bus
+
+    bus.validate_with(None)
+    yield
+    bus.validate_with(None)
+
+
 @pytest.fixture(scope="session")
 def point_runs(pytestconfig: pytest.Config) -> dict[str, Any]:
     """The trained point-env runs of :mod:`tests.trained` (URSA for each seed and DayDreamer),
