@@ -34,8 +34,6 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from sklearn.gaussian_process import GaussianProcessRegressor
-from sklearn.gaussian_process.kernels import ConstantKernel, Matern
 
 from ursa import kde
 from ursa.rundir import RunDir, atomic_write
@@ -210,6 +208,10 @@ class Decision:
 
 def kernel(params: ITEParams) -> Any:
     """The GP's kernel: variance × Matérn 5/2 with length scale ρ, both fixed (not fitted)."""
+    # imported on first use: scikit-learn takes about 2 s to import, which every ``ursa eval``
+    # command would otherwise pay
+    from sklearn.gaussian_process.kernels import ConstantKernel, Matern
+
     return ConstantKernel(params.variance, "fixed") * Matern(params.length_scale, "fixed", nu=2.5)
 
 
@@ -227,6 +229,8 @@ def posterior(m: SkillMap, obs: Observations, params: ITEParams) -> Posterior:
     idx = np.asarray(obs.indices, np.int64)
     if idx.min() < 0 or idx.max() >= len(m):
         raise ValueError(f"observed rows must be in 0..{len(m) - 1}")
+    from sklearn.gaussian_process import GaussianProcessRegressor
+
     resid = (np.asarray(obs.returns, np.float64) - m.prior[idx]) / s
     gp = GaussianProcessRegressor(
         kernel(params), alpha=params.noise, optimizer=None, normalize_y=False

@@ -15,6 +15,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
+from ursa.eval import adapt as adapt_cli
 from ursa.eval.common import jsonable
 from ursa.rundir import RunDir
 
@@ -134,6 +135,8 @@ def build_parser() -> argparse.ArgumentParser:
         help="env steps over which rates are taken (default: 1/25 of the run)",
     )
     _common(p, steps=False)
+
+    adapt_cli.add_parser(sub, _common)
 
     p = sub.add_parser("all", help="every evaluation that applies to the run")
     p.add_argument("run", help="run directory")
@@ -284,6 +287,7 @@ COMMANDS: dict[str, Callable[[argparse.Namespace], dict[str, Any]]] = {
     "velocity": cmd_velocity,
     "embedding": cmd_embedding,
     "curves": cmd_curves,
+    "adapt": adapt_cli.command,
     "all": cmd_all,
 }
 
