@@ -14,6 +14,9 @@ Keys have the form ``ursa/{run}/{producer}/{stream}[/{id}]``. No service writes 
 | ``ursa/{run}/learner/encoder`` | EncoderWeights | put (may drop) + query (latest) |
 | ``ursa/{run}/learner/stats`` | Stats | put, may drop |
 | ``ursa/{run}/evaluator/evaluate`` | EvaluateRequest -> EvaluateReply | query |
+| ``ursa/{run}/evaluator/adapt/{eid}`` | AdaptRequest -> AdaptJob | query (start a job) |
+| ``ursa/{run}/evaluator/adapt_job/{eid}`` | AdaptQuery -> AdaptJob | query (a job's state) |
+| ``ursa/{run}/evaluator/adapt_state/{eid}`` | AdaptJob | put at every change, may drop |
 | ``ursa/{run}/alive/{service}/{id}`` | liveliness token | liveliness |
 """
 
@@ -86,6 +89,18 @@ class Topics:
     @property
     def evaluate(self) -> str:
         return f"{self.root}/{EVALUATOR}/evaluate"
+
+    def adapt(self, eid: str = "*") -> str:
+        """Start an adaptation job on evaluator ``eid`` (one job at a time per evaluator)."""
+        return f"{self.root}/{EVALUATOR}/adapt/{_id(eid)}"
+
+    def adapt_job(self, eid: str = "*") -> str:
+        """The state of a job (ask every evaluator with ``*``: the one holding it replies)."""
+        return f"{self.root}/{EVALUATOR}/adapt_job/{_id(eid)}"
+
+    def adapt_state(self, eid: str = "*") -> str:
+        """Job states as they change (the dashboard's adaptation panel)."""
+        return f"{self.root}/{EVALUATOR}/adapt_state/{_id(eid)}"
 
     def stats(self, service: str = "*", sid: str = "*") -> str:
         """Stats of any service: ``collector`` stats carry an id, the others none."""

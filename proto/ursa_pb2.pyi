@@ -238,3 +238,108 @@ class EvaluateReply(_message.Message):
     policy_version: int
     error: str
     def __init__(self, header: _Optional[_Union[Header, _Mapping]] = ..., achieved: _Optional[_Union[Array, _Mapping]] = ..., distance: _Optional[float] = ..., delta: _Optional[float] = ..., ret: _Optional[float] = ..., violations: _Optional[int] = ..., steps: _Optional[int] = ..., policy_version: _Optional[int] = ..., error: _Optional[str] = ...) -> None: ...
+
+class AdaptRequest(_message.Message):
+    __slots__ = ("header", "damage", "frozen_joints", "budget", "alpha", "kappa", "length_scale", "noise", "skills", "steps", "has_seed", "seed")
+    HEADER_FIELD_NUMBER: _ClassVar[int]
+    DAMAGE_FIELD_NUMBER: _ClassVar[int]
+    FROZEN_JOINTS_FIELD_NUMBER: _ClassVar[int]
+    BUDGET_FIELD_NUMBER: _ClassVar[int]
+    ALPHA_FIELD_NUMBER: _ClassVar[int]
+    KAPPA_FIELD_NUMBER: _ClassVar[int]
+    LENGTH_SCALE_FIELD_NUMBER: _ClassVar[int]
+    NOISE_FIELD_NUMBER: _ClassVar[int]
+    SKILLS_FIELD_NUMBER: _ClassVar[int]
+    STEPS_FIELD_NUMBER: _ClassVar[int]
+    HAS_SEED_FIELD_NUMBER: _ClassVar[int]
+    SEED_FIELD_NUMBER: _ClassVar[int]
+    header: Header
+    damage: str
+    frozen_joints: _containers.RepeatedScalarFieldContainer[int]
+    budget: int
+    alpha: float
+    kappa: float
+    length_scale: float
+    noise: float
+    skills: int
+    steps: int
+    has_seed: bool
+    seed: int
+    def __init__(self, header: _Optional[_Union[Header, _Mapping]] = ..., damage: _Optional[str] = ..., frozen_joints: _Optional[_Iterable[int]] = ..., budget: _Optional[int] = ..., alpha: _Optional[float] = ..., kappa: _Optional[float] = ..., length_scale: _Optional[float] = ..., noise: _Optional[float] = ..., skills: _Optional[int] = ..., steps: _Optional[int] = ..., has_seed: _Optional[bool] = ..., seed: _Optional[int] = ...) -> None: ...
+
+class AdaptJob(_message.Message):
+    __slots__ = ("header", "job_id", "evaluator_id", "state", "stop_reason", "error", "request", "map_skills", "map_ids", "map_returns", "mapped", "map_cached", "trials", "chosen_skill_id", "chosen_return", "predicted_best_id", "predicted_best_mean", "predicted_mean", "predicted_std", "policy_version", "created", "updated")
+    class Trial(_message.Message):
+        __slots__ = ("row", "skill_id", "skill", "ret", "achieved", "violations", "predicted", "predicted_best_id", "predicted_best_mean")
+        ROW_FIELD_NUMBER: _ClassVar[int]
+        SKILL_ID_FIELD_NUMBER: _ClassVar[int]
+        SKILL_FIELD_NUMBER: _ClassVar[int]
+        RET_FIELD_NUMBER: _ClassVar[int]
+        ACHIEVED_FIELD_NUMBER: _ClassVar[int]
+        VIOLATIONS_FIELD_NUMBER: _ClassVar[int]
+        PREDICTED_FIELD_NUMBER: _ClassVar[int]
+        PREDICTED_BEST_ID_FIELD_NUMBER: _ClassVar[int]
+        PREDICTED_BEST_MEAN_FIELD_NUMBER: _ClassVar[int]
+        row: int
+        skill_id: int
+        skill: Array
+        ret: float
+        achieved: Array
+        violations: int
+        predicted: float
+        predicted_best_id: int
+        predicted_best_mean: float
+        def __init__(self, row: _Optional[int] = ..., skill_id: _Optional[int] = ..., skill: _Optional[_Union[Array, _Mapping]] = ..., ret: _Optional[float] = ..., achieved: _Optional[_Union[Array, _Mapping]] = ..., violations: _Optional[int] = ..., predicted: _Optional[float] = ..., predicted_best_id: _Optional[int] = ..., predicted_best_mean: _Optional[float] = ...) -> None: ...
+    HEADER_FIELD_NUMBER: _ClassVar[int]
+    JOB_ID_FIELD_NUMBER: _ClassVar[int]
+    EVALUATOR_ID_FIELD_NUMBER: _ClassVar[int]
+    STATE_FIELD_NUMBER: _ClassVar[int]
+    STOP_REASON_FIELD_NUMBER: _ClassVar[int]
+    ERROR_FIELD_NUMBER: _ClassVar[int]
+    REQUEST_FIELD_NUMBER: _ClassVar[int]
+    MAP_SKILLS_FIELD_NUMBER: _ClassVar[int]
+    MAP_IDS_FIELD_NUMBER: _ClassVar[int]
+    MAP_RETURNS_FIELD_NUMBER: _ClassVar[int]
+    MAPPED_FIELD_NUMBER: _ClassVar[int]
+    MAP_CACHED_FIELD_NUMBER: _ClassVar[int]
+    TRIALS_FIELD_NUMBER: _ClassVar[int]
+    CHOSEN_SKILL_ID_FIELD_NUMBER: _ClassVar[int]
+    CHOSEN_RETURN_FIELD_NUMBER: _ClassVar[int]
+    PREDICTED_BEST_ID_FIELD_NUMBER: _ClassVar[int]
+    PREDICTED_BEST_MEAN_FIELD_NUMBER: _ClassVar[int]
+    PREDICTED_MEAN_FIELD_NUMBER: _ClassVar[int]
+    PREDICTED_STD_FIELD_NUMBER: _ClassVar[int]
+    POLICY_VERSION_FIELD_NUMBER: _ClassVar[int]
+    CREATED_FIELD_NUMBER: _ClassVar[int]
+    UPDATED_FIELD_NUMBER: _ClassVar[int]
+    header: Header
+    job_id: str
+    evaluator_id: str
+    state: str
+    stop_reason: str
+    error: str
+    request: AdaptRequest
+    map_skills: Array
+    map_ids: Array
+    map_returns: Array
+    mapped: int
+    map_cached: bool
+    trials: _containers.RepeatedCompositeFieldContainer[AdaptJob.Trial]
+    chosen_skill_id: int
+    chosen_return: float
+    predicted_best_id: int
+    predicted_best_mean: float
+    predicted_mean: Array
+    predicted_std: Array
+    policy_version: int
+    created: float
+    updated: float
+    def __init__(self, header: _Optional[_Union[Header, _Mapping]] = ..., job_id: _Optional[str] = ..., evaluator_id: _Optional[str] = ..., state: _Optional[str] = ..., stop_reason: _Optional[str] = ..., error: _Optional[str] = ..., request: _Optional[_Union[AdaptRequest, _Mapping]] = ..., map_skills: _Optional[_Union[Array, _Mapping]] = ..., map_ids: _Optional[_Union[Array, _Mapping]] = ..., map_returns: _Optional[_Union[Array, _Mapping]] = ..., mapped: _Optional[int] = ..., map_cached: _Optional[bool] = ..., trials: _Optional[_Iterable[_Union[AdaptJob.Trial, _Mapping]]] = ..., chosen_skill_id: _Optional[int] = ..., chosen_return: _Optional[float] = ..., predicted_best_id: _Optional[int] = ..., predicted_best_mean: _Optional[float] = ..., predicted_mean: _Optional[_Union[Array, _Mapping]] = ..., predicted_std: _Optional[_Union[Array, _Mapping]] = ..., policy_version: _Optional[int] = ..., created: _Optional[float] = ..., updated: _Optional[float] = ...) -> None: ...
+
+class AdaptQuery(_message.Message):
+    __slots__ = ("header", "job_id")
+    HEADER_FIELD_NUMBER: _ClassVar[int]
+    JOB_ID_FIELD_NUMBER: _ClassVar[int]
+    header: Header
+    job_id: str
+    def __init__(self, header: _Optional[_Union[Header, _Mapping]] = ..., job_id: _Optional[str] = ...) -> None: ...

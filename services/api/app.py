@@ -25,9 +25,11 @@ from fastapi import FastAPI, HTTPException, Path, Query, Request
 from fastapi.exception_handlers import http_exception_handler
 from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
+from google.protobuf import json_format
 from pydantic import (
     AfterValidator,
     BaseModel,
+    BeforeValidator,
     ConfigDict,
     Discriminator,
     Field,
@@ -49,12 +51,14 @@ MAX_ARRAY_ITEMS = 4096
 
 DESCRIPTION = """\
 Query the skills of a live URSA run, list its collectors, read every service's latest stats,
-and run a skill on the evaluation collector.
+run a skill on the evaluation collector, and adapt to damage (Intelligent Trial and Error over
+the repertoire, ``POST /adapt``).
 
 The API is its own process (``python -m services.api``): it keeps the latest repertoire
 snapshot and stats from the Zenoh bus, answers reads from them, and forwards
-``POST /skills/sample`` to the repertoire's sample queryable and ``POST /evaluate`` to the
-evaluator's queryable. 422: invalid input; 404: unknown skill; 503: a peer is missing.
+``POST /skills/sample`` to the repertoire's sample queryable, ``POST /evaluate`` and
+``POST /adapt`` to the evaluator's. 422: invalid input; 404: unknown skill or job; 409: the
+evaluator already runs an adaptation; 503: a peer is missing.
 
 This schema states every bound the API enforces, from the run's config (skill dimension and
 box, damages, ranges): a request valid against it is never answered 422.
@@ -264,6 +268,67 @@ def create_app(state: ApiState) -> FastAPI:
             | None
         ) = Field(None, description="Damage scenario (A1); null/''/'none': intact")
         seed: m.Seed | None = Field(None, description="Seed of the environment")
+
+    n_joints = state.joints
+
+    def distinct_joints(v: list[int]) -> list[int]:
+        if len(set(v)) != len(v):
+            raise ValueError(f"frozen_joints {v} repeat a joint")
+        return v
+
+    Joint = Annotated[int, Field(ge=0, le=max(n_joints - 1, 0)), BeforeValidator(m.integral)]
+    Positive = Annotated[float, Field(allow_inf_nan=False)]
+
+    class AdaptRequest(BaseModel):
+        model_config = ConfigDict(extra="forbid", strict=True)
+        damage: (
+            Annotated[
+                str,
+                AfterValidator(known_damage),
+                WithJsonSchema({"type": "string", "enum": list(damages)}),
+            ]
+            | None
+        ) = Field(None, description="Damage preset (A1); null/''/'none': none")
+        frozen_joints: Annotated[
+            list[Joint],
+            Field(max_length=n_joints),
+            AfterValidator(distinct_joints),
+            WithJsonSchema(
+                {
+                    "type": "array",
+                    "items": {"type": "integer", "minimum": 0, "maximum": max(n_joints - 1, 0)},
+                    "maxItems": n_joints,
+                    "uniqueItems": True,
+                }
+            ),
+        ] = Field(
+            default_factory=list,
+            description="More frozen joints (indices into ursa.envs.a1.JOINT_NAMES: FR, FL, RR, "
+            "RL × hip, upper, lower), each held at its standing angle; any set of joints",
+        )
+        budget: m.Integer = Field(
+            20, ge=1, le=state.max_adapt_budget, description="Most trials on the damaged robot"
+        )
+        alpha: Positive = Field(
+            0.9, gt=0.0, le=1.0, description="Stop once best observed ≥ alpha × best predicted"
+        )
+        kappa: Positive = Field(0.05, ge=0.0, le=100.0, description="UCB exploration weight")
+        length_scale: Positive = Field(
+            1.0, gt=0.0, le=1000.0, description="Matérn 5/2 length scale (skill std units)"
+        )
+        noise: Positive = Field(
+            1e-3, gt=0.0, le=1000.0, description="GP noise variance ((map return range)²)"
+        )
+        skills: Annotated[int, Field(ge=1, le=state.max_adapt_skills), m.integral_v] | None = Field(
+            None, description="Map size: the most distinct skills of the repertoire (default N_z)"
+        )
+        steps: Annotated[int, Field(ge=1, le=state.max_eval_steps), m.integral_v] | None = Field(
+            None, description="Control steps per trial (default: the run's skill period)"
+        )
+        seed: m.Seed | None = Field(None, description="Seed of the trials' environments")
+        evaluator: (
+            Annotated[str, Field(min_length=1, max_length=64, pattern=r"^[A-Za-z0-9_.\-]+$")] | None
+        ) = Field(None, description="Evaluator id (default: the first alive)")
 
     base_openapi = app.openapi
 
@@ -582,5 +647,191 @@ def create_app(state: ApiState) -> FastAPI:
             policy_version=int(reply.policy_version),
             elapsed_s=time.perf_counter() - t0,
         )
+
+    # ---- adaptation ------------------------------------------------------------------------
+    # only where jobs can be forwarded (the service always can; an app built in-process
+    # without an adaptation backend has no /adapt routes rather than routes that answer 503)
+    def add_adapt_routes() -> None:
+        e404: dict[int | str, dict[str, Any]] = {
+            404: {"model": m.Error, "description": "No such job"}
+        }
+
+        def job_out(job: pb.AdaptJob, source: str) -> m.AdaptJob:
+            def arr(a: pb.Array) -> np.ndarray:
+                try:
+                    return np.asarray(codec.from_array(a), np.float64)
+                except codec.BadMessage:
+                    return np.zeros(0)
+
+            skills = arr(job.map_skills)
+            ids = [int(i) for i in arr(job.map_ids)]
+
+            def coords(skill_id: int) -> list[float]:
+                if skill_id in ids and skills.ndim == 2:
+                    return [float(v) for v in skills[ids.index(skill_id)]]
+                return []
+
+            r = job.request
+            trials = [
+                m.AdaptTrial(
+                    trial=k,
+                    skill_id=int(t.skill_id),
+                    skill=[float(v) for v in arr(t.skill)],
+                    ret=t.ret,
+                    achieved=[float(v) for v in arr(t.achieved)],
+                    violations=int(t.violations),
+                    predicted=finite(t.predicted),
+                    predicted_best_id=int(t.predicted_best_id),
+                    predicted_best_mean=finite(t.predicted_best_mean),
+                )
+                for k, t in enumerate(job.trials, 1)
+            ]
+            chosen = (
+                m.AdaptSkill(
+                    skill_id=int(job.chosen_skill_id),
+                    skill=coords(int(job.chosen_skill_id)),
+                    value=finite(job.chosen_return),
+                )
+                if job.chosen_skill_id >= 0
+                else None
+            )
+            best = (
+                m.AdaptSkill(
+                    skill_id=int(job.predicted_best_id),
+                    skill=coords(int(job.predicted_best_id)),
+                    value=finite(job.predicted_best_mean),
+                )
+                if job.predicted_best_id >= 0
+                else None
+            )
+            return m.AdaptJob(
+                job_id=job.job_id,
+                evaluator=job.evaluator_id,
+                state=job.state,  # type: ignore[arg-type]
+                stop_reason=job.stop_reason,
+                source=source,  # type: ignore[arg-type]
+                damage=r.damage or "none",
+                frozen_joints=[int(j) for j in r.frozen_joints],
+                params=m.AdaptParams(
+                    budget=int(r.budget),
+                    alpha=r.alpha,
+                    kappa=r.kappa,
+                    length_scale=r.length_scale,
+                    noise=r.noise,
+                ),
+                skills=len(ids),
+                steps=int(r.steps),
+                seed=int(r.seed),
+                mapped=int(job.mapped),
+                map_cached=bool(job.map_cached),
+                policy_version=int(job.policy_version),
+                trials=trials,
+                chosen=chosen,
+                predicted_best=best,
+                created=job.created,
+                updated=job.updated,
+            )
+
+        @app.post(
+            "/adapt",
+            status_code=202,
+            response_model=m.AdaptJob,
+            tags=["adapt"],
+            responses={
+                404: {"model": m.Error, "description": "No such evaluator alive"},
+                409: {"model": m.Error, "description": "The evaluator already runs a job"},
+                **e503,
+            },
+        )
+        def start_adapt(body: AdaptRequest) -> m.AdaptJob:
+            """Start adapting to a damage on an evaluator: Intelligent Trial and Error over the
+            repertoire's most distinct skills (their intact returns are the model's prior). Returns
+            the job at once (202); follow it with ``GET /adapt/{job_id}``. One job at a time per
+            evaluator: another is refused with 409."""
+            backend = state.adapt_backend
+            if backend is None:
+                unavailable("no bus: adaptation needs the evaluator service")
+            alive = sorted(live.alive_ids("evaluator"))
+            if not alive:
+                unavailable("no evaluator alive (start python -m services.evaluator)")
+            eid = body.evaluator or alive[0]
+            if eid not in alive:
+                raise HTTPException(
+                    404, detail=f"evaluator {eid!r} is not alive (alive: {', '.join(alive)})"
+                )
+            req = pb.AdaptRequest(
+                header=backend.header(),
+                damage=body.damage or "",
+                frozen_joints=body.frozen_joints,
+                budget=body.budget,
+                alpha=body.alpha,
+                kappa=body.kappa,
+                length_scale=body.length_scale,
+                noise=body.noise,
+                skills=body.skills or 0,
+                steps=body.steps or 0,
+            )
+            if body.seed is not None:
+                req.has_seed, req.seed = True, body.seed
+            reply = backend.adapt(req, eid, state.adapt_timeout_s)
+            if reply is None:
+                unavailable(f"evaluator {eid} did not answer within {state.adapt_timeout_s:.0f} s")
+            if reply.error.startswith("invalid:"):
+                invalid(("body",), reply.error.removeprefix("invalid:").strip())
+            if reply.error.startswith("busy:"):
+                raise HTTPException(409, detail=reply.error.removeprefix("busy:").strip())
+            if reply.error:
+                unavailable(reply.error.removeprefix("unavailable:").strip())
+            state.on_adapt_state(reply)
+            return job_out(reply, "evaluator")
+
+        def job_file(job_id: str) -> pb.AdaptJob | None:
+            if state.jobs_dir is None:
+                return None
+            try:
+                text = (state.jobs_dir / f"{job_id}.json").read_text()
+                return json_format.Parse(text, pb.AdaptJob())
+            except (OSError, json_format.ParseError):
+                return None
+
+        @app.get(
+            "/adapt/{job_id}",
+            response_model=m.AdaptJob,
+            tags=["adapt"],
+            responses={**e404, **e503},
+        )
+        def get_adapt(
+            job_id: Annotated[
+                str, Path(pattern="^[0-9a-f]{16}$", description="Job id (16 hex digits)")
+            ],
+        ) -> m.AdaptJob:
+            """A job's state, each trial (skill, return, achieved features), the chosen skill, the
+            model's predicted best and the stop reason. Asked of the evaluators; when none answers,
+            the latest state seen on the bus or the job's file in the run directory, marked
+            ``lost`` if its evaluator is gone before it finished."""
+            alive = live.alive_ids("evaluator")
+            if state.adapt_backend is not None and alive:
+                job = state.adapt_backend.adapt_job(job_id, state.adapt_timeout_s)
+                if job is not None:
+                    state.on_adapt_state(job)
+                    return job_out(job, "evaluator")
+            candidates = ((state.cached_job(job_id), "bus"), (job_file(job_id), "run_dir"))
+            found = [(j, src) for j, src in candidates if j is not None]
+            if not found:
+                raise HTTPException(404, detail=f"no adaptation job {job_id}")
+            job, source = max(found, key=lambda js: js[0].updated)
+            if job.state not in ("done", "failed", "lost") and job.evaluator_id not in alive:
+                gone = pb.AdaptJob()
+                gone.CopyFrom(job)
+                gone.state = "lost"
+                gone.stop_reason = (
+                    f"lost: evaluator {job.evaluator_id} is gone; the job was {job.state} "
+                    f"{max(0.0, time.time() - job.updated):.0f} s ago"
+                )
+                job = gone
+            return job_out(job, source)
+
+    if state.adapt_backend is not None:
+        add_adapt_routes()
 
     return app

@@ -1,4 +1,5 @@
-"""The API's link to the bus: forwards sample and evaluate requests as Zenoh queries."""
+"""The API's link to the bus: forwards sample, evaluate and adaptation requests as Zenoh
+queries."""
 
 from __future__ import annotations
 
@@ -11,7 +12,8 @@ from services.common.runtime import ServiceRuntime
 
 
 class BusBackend:
-    """``services.api.state.Backend`` over a service runtime's Zenoh session."""
+    """``services.api.state.Backend`` and ``AdaptBackend`` over a service runtime's Zenoh
+    session."""
 
     def __init__(self, rt: ServiceRuntime, router: str) -> None:
         self.rt = rt
@@ -39,6 +41,32 @@ class BusBackend:
             pb.EvaluateReply,
             codec.encode(req),
             timeout_s=timeout_s,
+        )
+
+    def adapt(self, req: pb.AdaptRequest, evaluator: str, timeout_s: float) -> pb.AdaptJob | None:
+        return query_one(
+            self.rt.session,
+            self.rt.topics.adapt(evaluator),
+            pb.AdaptJob,
+            codec.encode(req),
+            timeout_s=timeout_s,
+        )
+
+    def adapt_job(self, job_id: str, timeout_s: float) -> pb.AdaptJob | None:
+        req = pb.AdaptQuery(header=self.rt.header(), job_id=job_id)
+
+        def same(msg: pb.AdaptJob) -> None:
+            if msg.job_id != job_id:
+                raise codec.BadMessage(f"asked for job {job_id}, got {msg.job_id}")
+
+        # every evaluator is asked; only the one holding the job replies
+        return query_one(
+            self.rt.session,
+            self.rt.topics.adapt_job("*"),
+            pb.AdaptJob,
+            codec.encode(req),
+            timeout_s=timeout_s,
+            check=same,
         )
 
     def bus_status(self) -> dict[str, Any]:

@@ -25,6 +25,8 @@ def integral(v: Any) -> Any:
     return v
 
 
+integral_v = BeforeValidator(integral)
+"""``integral`` as an annotation (after any ``Field`` bounds, so the schema states them)."""
 Coordinate = Annotated[float, Field(allow_inf_nan=False)]
 Integer = Annotated[int, BeforeValidator(integral)]
 """An integer field of a request body (strict, but 12.0 reads as 12)."""
@@ -135,3 +137,60 @@ class EvaluateReply(BaseModel):
     damage: str
     policy_version: int = Field(description="Weights used (0: none yet, random actions)")
     elapsed_s: float
+
+
+class AdaptParams(BaseModel):
+    budget: int = Field(description="Most trials on the damaged robot")
+    alpha: float = Field(description="Stop once best observed ≥ alpha × best predicted")
+    kappa: float = Field(description="UCB exploration weight (mean + kappa × std)")
+    length_scale: float = Field(description="Matérn 5/2 length scale, in skill standard deviations")
+    noise: float = Field(description="GP noise variance, in (map return range)²")
+
+
+class AdaptTrial(BaseModel):
+    trial: int = Field(description="1-based trial number")
+    skill_id: int
+    skill: list[float] = Field(description="The skill tried (D,)")
+    ret: float = Field(description="Return on the damaged robot")
+    achieved: list[float] = Field(description="Mean φ over the trial (D,)")
+    violations: int = Field(description="Unsafe steps")
+    predicted: float | None = Field(description="Return the model predicted before the trial")
+    predicted_best_id: int = Field(description="Skill of the highest predicted mean after it")
+    predicted_best_mean: float | None
+
+
+class AdaptSkill(BaseModel):
+    skill_id: int
+    skill: list[float]
+    value: float | None = Field(description="Its return (chosen) or predicted mean (best)")
+
+
+class AdaptJob(BaseModel):
+    job_id: str
+    evaluator: str = Field(description="The evaluator running it")
+    state: Literal["mapping", "adapting", "done", "failed", "lost"] = Field(
+        description="mapping: measuring the intact returns (ITE's map); adapting: trials on the "
+        "damaged robot; done: stopped (see stop_reason); failed; lost: its evaluator stopped"
+    )
+    stop_reason: str = Field(
+        description="threshold (ITE's rule), budget, exhausted (every skill tried), or why it "
+        "failed or was lost; empty while running"
+    )
+    source: Literal["evaluator", "bus", "run_dir"] = Field(
+        description="evaluator: its own answer; bus: the latest state it published; run_dir: "
+        "the job's file (no evaluator answered)"
+    )
+    damage: str
+    frozen_joints: list[int]
+    params: AdaptParams
+    skills: int = Field(description="Skills in the map (most distinct of the repertoire)")
+    steps: int = Field(description="Control steps per trial")
+    seed: int
+    mapped: int = Field(description="Map skills measured on the intact robot so far")
+    map_cached: bool = Field(description="The map was read from the run directory")
+    policy_version: int
+    trials: list[AdaptTrial]
+    chosen: AdaptSkill | None = Field(description="The best trial so far (the skill kept)")
+    predicted_best: AdaptSkill | None = Field(description="The highest predicted mean")
+    created: float
+    updated: float

@@ -1,9 +1,12 @@
 """HTTP API: a FastAPI app served by uvicorn, in its own process, fed from the bus.
 
 Subscribes:  ursa/{run}/*/stats/** (Stats), ursa/{run}/repertoire/snapshot (RepertoireSnapshot;
-             also queried at start and while none has arrived)
+             also queried at start and while none has arrived),
+             ursa/{run}/evaluator/adapt_state/* (AdaptJob: adaptation jobs as they change)
 Queries:     ursa/{run}/repertoire/sample (POST /skills/sample),
-             ursa/{run}/evaluator/evaluate (POST /evaluate)
+             ursa/{run}/evaluator/evaluate (POST /evaluate),
+             ursa/{run}/evaluator/adapt/{eid} (POST /adapt),
+             ursa/{run}/evaluator/adapt_job/* (GET /adapt/{id})
 Liveliness:  watches ursa/{run}/alive/*/*; declares ursa/{run}/alive/api/main
 Publishes:   ursa/{run}/api/stats (request counts)
 
@@ -32,6 +35,7 @@ from services.common.config import BusConfig, RunConfig, save_resolved
 from services.common.runtime import ServiceRuntime
 from services.dashboard.live import LiveState
 from services.evaluator.rollout import allowed_damages
+from ursa.adapt import adapt_dir
 from ursa.bounds import declared
 from ursa.config import Config
 
@@ -55,6 +59,21 @@ class ApiArgs:
     """Fixed part of the time an evaluation may take before the API answers 503."""
     eval_timeout_per_step_s: float = 0.05
     """Per-step part of that time."""
+    max_adapt_budget: int = 200
+    """Largest trial budget of ``POST /adapt`` (the evaluator's own limit)."""
+    max_adapt_skills: int = 5000
+    """Largest map of ``POST /adapt`` (the evaluator's own limit)."""
+    adapt_timeout_s: float = 10.0
+    """How long ``/adapt`` waits for an evaluator (it answers between two rollouts)."""
+
+
+def _joints(env: str) -> int:
+    """Joints an adaptation job may freeze on ``env``."""
+    if env == "a1":
+        from ursa.envs.a1 import JOINT_NAMES
+
+        return len(JOINT_NAMES)
+    return 0
 
 
 class ApiService:
@@ -79,9 +98,10 @@ class ApiService:
                 safe_handler(pb.RepertoireSnapshot, self.live.on_snapshot, drops, args.run.run_id),
             ),
         ]
+        backend = BusBackend(self.rt, args.bus.router)
         self.state = ApiState(
             live=self.live,
-            backend=BusBackend(self.rt, args.bus.router),
+            backend=backend,
             env=args.core.env,
             skill_dim=args.core.skill_dim,
             skill_box=declared(args.core).samples,
@@ -90,6 +110,20 @@ class ApiService:
             eval_timeout_s=args.eval_timeout_s,
             eval_timeout_per_step_s=args.eval_timeout_per_step_s,
             damages=allowed_damages(args.core.env),
+            adapt_backend=backend,
+            joints=_joints(args.core.env),
+            jobs_dir=adapt_dir(args.run.dir) / "jobs",
+            max_adapt_budget=args.max_adapt_budget,
+            max_adapt_skills=args.max_adapt_skills,
+            adapt_timeout_s=args.adapt_timeout_s,
+        )
+        self.subs.append(
+            self.rt.session.declare_subscriber(
+                t.adapt_state("*"),
+                safe_handler(
+                    pb.AdaptJob, lambda m, _k: self.state.on_adapt_state(m), drops, args.run.run_id
+                ),
+            )
         )
         self.app = create_app(self.state)
         self.server = uvicorn.Server(

@@ -10,11 +10,31 @@ from __future__ import annotations
 import threading
 import time
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any, Protocol
 
 from proto import ursa_pb2 as pb
 from services.dashboard.live import LiveState
 from ursa.bounds import Box
+
+MAX_JOBS = 256
+"""Job states the API keeps from the bus (the run directory keeps them all)."""
+
+
+class AdaptBackend(Protocol):
+    """Adaptation jobs the API forwards to the evaluators."""
+
+    def adapt(self, req: pb.AdaptRequest, evaluator: str, timeout_s: float) -> pb.AdaptJob | None:
+        """Evaluator ``evaluator``'s reply to a job request, or None if it did not answer."""
+        ...
+
+    def adapt_job(self, job_id: str, timeout_s: float) -> pb.AdaptJob | None:
+        """The state of a job from the evaluator holding it, or None if none answered."""
+        ...
+
+    def header(self) -> pb.Header:
+        """A header for outgoing requests."""
+        ...
 
 
 class Backend(Protocol):
@@ -63,6 +83,19 @@ class ApiState:
     eval_wait_s: float = 120.0
     """How long a request waits for the evaluation before it (they run one at a time)."""
     damages: tuple[str, ...] = ("", "none")
+    adapt_backend: AdaptBackend | None = None
+    """Forwards adaptation jobs (None: ``POST /adapt`` answers 503)."""
+    joints: int = 0
+    """Joints a job may freeze (A1: 12, ``ursa.envs.a1.JOINT_NAMES``; other envs: none)."""
+    jobs_dir: Path | None = None
+    """``<run>/eval/adapt/jobs``: where evaluators persist jobs (read when none answers)."""
+    max_adapt_budget: int = 200
+    max_adapt_skills: int = 5000
+    adapt_timeout_s: float = 10.0
+    """How long a job request or state query waits for the evaluator (it answers between two
+    rollouts)."""
+    adapt_jobs: dict[str, pb.AdaptJob] = field(default_factory=dict)
+    """Latest state of each job published on the bus (newest ``MAX_JOBS``)."""
     started: float = field(default_factory=time.time)
     eval_lock: threading.Lock = field(default_factory=threading.Lock)
     requests: dict[str, int] = field(default_factory=dict)
@@ -73,6 +106,20 @@ class ApiState:
         with self._count_lock:
             self.requests[key] = self.requests.get(key, 0) + 1
             self.requests["http_total"] = self.requests.get("http_total", 0) + 1
+
+    def on_adapt_state(self, msg: pb.AdaptJob) -> None:
+        """Keep a job's newest published state."""
+        with self._count_lock:
+            cur = self.adapt_jobs.get(msg.job_id)
+            if cur is None or msg.updated >= cur.updated:
+                self.adapt_jobs.pop(msg.job_id, None)
+                self.adapt_jobs[msg.job_id] = msg
+            while len(self.adapt_jobs) > MAX_JOBS:
+                self.adapt_jobs.pop(next(iter(self.adapt_jobs)))
+
+    def cached_job(self, job_id: str) -> pb.AdaptJob | None:
+        with self._count_lock:
+            return self.adapt_jobs.get(job_id)
 
     def counters(self) -> dict[str, int]:
         with self._count_lock:

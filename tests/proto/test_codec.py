@@ -90,6 +90,28 @@ def _examples() -> list[pb.Message]:  # type: ignore[name-defined]
             steps=250,
             policy_version=3,
         ),
+        pb.AdaptRequest(
+            header=h, damage="front_hip", frozen_joints=[4, 7], budget=20, alpha=0.9, kappa=0.05
+        ),
+        pb.AdaptJob(
+            header=h,
+            job_id="0123456789abcdef",
+            evaluator_id="eval",
+            state="adapting",
+            request=pb.AdaptRequest(header=h, budget=5),
+            map_skills=codec.to_array(_arr((4, 3))),
+            map_ids=codec.to_array(_arr((4,), "i8")),
+            map_returns=codec.to_array(_arr((4,), "f8")),
+            mapped=4,
+            trials=[
+                pb.AdaptJob.Trial(
+                    row=1, skill_id=2, skill=codec.to_array(_arr((3,))), ret=1.0, predicted=0.5
+                )
+            ],
+            chosen_skill_id=2,
+            predicted_mean=codec.to_array(_arr((4,), "f8")),
+        ),
+        pb.AdaptQuery(header=h, job_id="0123456789abcdef"),
     ]
 
 
