@@ -2,6 +2,7 @@
 
 Subscribes:  ursa/{run}/*/stats/** (Stats of every service)
              ursa/{run}/repertoire/snapshot (RepertoireSnapshot; also queried at start)
+             ursa/{run}/evaluator/adapt_state/* (AdaptJob: damage adaptation, the Adapt tab)
 Liveliness:  watches ursa/{run}/alive/*/*; declares ursa/{run}/alive/dashboard/main
 Publishes:   ursa/{run}/dashboard/stats (Stats: viewers, skills shown, plots, frame time)
 
@@ -26,6 +27,7 @@ from services.common.bus import Presence, query_one, safe_handler, validate_with
 from services.common.config import BusConfig, RunConfig, save_resolved
 from services.common.runtime import ServiceRuntime
 from services.dashboard.live import LiveState
+from services.dashboard.panels.adapt import AdaptPanel
 from services.dashboard.panels.plots import PlotsPanel
 from services.dashboard.panels.repertoire import RepertoirePanel
 from services.dashboard.panels.robot import RobotPanel
@@ -103,6 +105,8 @@ class DashboardView:
             self.robot = RobotPanel(server, load_meshes=True) if args.robot else None
             if self.robot is None:
                 gui.add_markdown("*robot view disabled (`--no-robot`)*")
+        with tabs.add_tab("Adapt"):
+            self.adapt = AdaptPanel(server, self.repertoire)
         plots_tab = tabs.add_tab("Plots")
         with plots_tab:
             self.plots = PlotsPanel(server, plots_tab, max_points=args.plot_points)
@@ -133,6 +137,7 @@ class DashboardView:
         snap = self.state.latest_snapshot()
         collectors = self.state.collectors()
         self.repertoire.update(snap, collectors)
+        self.adapt.update()
         alive = {
             svc: self.state.alive_ids(svc)
             for svc in ("learner", "repertoire", "evaluator", "dashboard", "api")
@@ -184,6 +189,14 @@ class Dashboard:
         ]
         self.server = viser.ViserServer(host=args.host, port=args.port, label="URSA", verbose=False)
         self.view = DashboardView(self.server, self.state, args, connected=self.connected)
+        self.subs.append(
+            self.rt.session.declare_subscriber(
+                t.adapt_state("*"),
+                safe_handler(
+                    pb.AdaptJob, lambda m, _k: self.view.adapt.on_job(m), drops, args.run.run_id
+                ),
+            )
+        )
         self._robot_thread = threading.Thread(
             target=self._robot_loop, daemon=True, name="dashboard-robot"
         )
