@@ -341,8 +341,11 @@ class Evaluator:
 
     # ---- adaptation jobs ---------------------------------------------------------------------
     def _acting(self, seed: int) -> Acting:
+        """The job's acting: the policy; before any weights, uniform actions as collectors do
+        where φ is provided, and the initial policy (whose encoder gives φ) where it is
+        learned, since uniform actions have no φ in skill space there."""
         rng = np.random.default_rng(seed)
-        if self.policy_version > 0:
+        if self.policy_version > 0 or self.cfg.learned_feature:
             return PolicyActing(self.policy, rng, self.args.explore)
         return RandomActing(self.act_dim, rng)
 

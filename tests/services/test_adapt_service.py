@@ -286,3 +286,42 @@ def test_a_job_whose_evaluator_stops_is_lost(stack: tuple[Stack, Any]) -> None:
                 ev2.close()
     finally:
         api.close()
+
+
+def test_a1_job_with_any_frozen_joints(stack: tuple[Stack, Any]) -> None:
+    """On the A1, a preset damage plus more frozen joints reach the trials' env, with the
+    rescue off; the intact map is measured on the undamaged robot."""
+    st, peer = stack
+    cfg = preset("tiny", "a1")
+    args = EvaluatorArgs(
+        core=cfg, bus=st.bus, max_steps=500, run=RunConfig(run_id=RUN, root=st.runs)
+    )
+    ev = Evaluator(args)
+    try:
+        d = cfg.skill_dim
+        peer.put(st.topics.snapshot, codec.encode(snapshot_msg(20, d=d, run_id=RUN)))
+        wait_for(lambda: ev.snapshot is not None, 10, "the snapshot")
+        assert ev.start_adapt(_req(frozen_joints=[12])).error.startswith("invalid:")
+        assert ev.start_adapt(_req(frozen_joints=[3, 3])).error.startswith("invalid:")
+        job = ev.start_adapt(_req(damage="front_upper", frozen_joints=[10, 4], skills=3))
+        assert not job.error, job.error
+        assert list(job.request.frozen_joints) == [4, 10] and job.request.damage == "front_upper"
+        run = ev.job
+        assert run is not None
+        env = ev._job_env(run, 0)
+        try:
+            frozen = env.frozen_joints  # type: ignore[attr-defined]
+            assert sorted(frozen) == [1, 4, 10] and not env.config.rescue  # type: ignore[attr-defined]
+        finally:
+            env.close()
+        intact = ev._job_env(None, 0)
+        try:
+            assert intact.frozen_joints == {}  # type: ignore[attr-defined]
+        finally:
+            intact.close()
+        _run_job(ev)
+        done = ev.job_state(job.job_id)
+        assert done is not None and done.state == DONE and len(done.trials) >= 1
+        assert all(np.isfinite(t.ret) for t in done.trials)
+    finally:
+        ev.close()
