@@ -55,6 +55,18 @@ def check_alive(service: str, sid: str | None) -> str:
     router = os.environ.get("URSA_ROUTER", "tcp/router:7447")
     key = f"ursa/{run}/alive/{service}/{sid}"
     conf = zenoh.Config()
+    # with authentication on, log in as the service's role (its credentials in the run's
+    # secrets, as services.common.secrets reads them)
+    cred = os.environ.get("URSA_BUS_CREDENTIALS") or os.path.join(
+        os.environ.get("URSA_SECRETS_DIR")
+        or os.path.join(os.environ.get("URSA_RUNS_DIR", "runs"), run, "secrets"),
+        f"{service}.cred",
+    )
+    if os.environ.get("URSA_BUS_AUTH", "auto") != "off" and os.path.exists(cred):
+        with open(cred) as f:
+            user, _, password = f.read().strip().partition(":")
+        conf.insert_json5("transport/auth/usrpwd/user", json.dumps(user))
+        conf.insert_json5("transport/auth/usrpwd/password", json.dumps(password))
     conf.insert_json5("mode", json.dumps("client"))
     conf.insert_json5("connect/endpoints", json.dumps([router]))
     conf.insert_json5("scouting/multicast/enabled", "false")

@@ -8,6 +8,8 @@
 | ``bus.key`` | 32 random bytes, hex: the HMAC-SHA256 key of every bus frame (``proto.codec``) |
 | ``users`` | the router's user/password dictionary (``user:password`` per line) |
 | ``<role>.cred`` | ``user:password`` of one role (``learner``, ``collector``, ...) |
+| ``bridge.cred`` | ``user:password`` a second router logs in to the main one with |
+| ``router.zid`` | the main router's Zenoh id (hex), which a second router recognises it by |
 
 Authentication (``--bus.auth``): ``on``, ``off`` or ``auto`` (default): on when an endpoint the
 process uses is not loopback, or when the secrets directory already holds the role's
@@ -18,6 +20,12 @@ declare liveliness subscribers under ``ursa/{run}/**``; a role may publish, repl
 queryables and liveliness tokens only under its own ``ursa/{run}/{role}/**`` (and
 ``ursa/{run}/alive/{role}/**``). So only the learner publishes weights, only collectors
 transitions and features, only the repertoire snapshots.
+
+Two routers bridged (collectors on another machine behind their own router, which connects to
+the main one: ``python -m services.router --connect tcp/<main>:7447``): the second router logs
+in to the main one as ``bridge``, which may publish only what collectors publish; the second
+router enforces the same per-role rules on its own clients and admits what comes from the main
+router (recognised by ``router.zid``; the main router already checked it) under every rule.
 """
 
 from __future__ import annotations
@@ -39,6 +47,9 @@ ROLES: tuple[str, ...] = SERVICES
 """Roles with their own credentials: one per service kind (collectors share one)."""
 KEY_FILE = "bus.key"
 USERS_FILE = "users"
+BRIDGE = "bridge"
+"""The user a second router logs in to the main one as (collectors' rights)."""
+ROUTER_ZID_FILE = "router.zid"
 AUTH_MODES = ("auto", "on", "off")
 
 
@@ -94,7 +105,26 @@ def generate(directory: Path) -> Path:
         _write_private(
             directory / USERS_FILE, "".join(f"{role}:{pw}\n" for role, pw in creds.items())
         )
+    if not (directory / f"{BRIDGE}.cred").exists():  # also added to secrets made before it
+        pw = _random.token_urlsafe(24)
+        with open(directory / USERS_FILE, "a") as f:
+            f.write(f"{BRIDGE}:{pw}\n")
+        _write_private(directory / f"{BRIDGE}.cred", f"{BRIDGE}:{pw}\n")
+    if not (directory / ROUTER_ZID_FILE).exists():
+        # a Zenoh id: at most 16 bytes, hex, not zero
+        _write_private(directory / ROUTER_ZID_FILE, "1" + _random.token_hex(15) + "\n")
     return directory
+
+
+def read_router_zid(directory: Path) -> str:
+    """The main router's Zenoh id (``router.zid``); ValueError when missing or malformed."""
+    path = directory / ROUTER_ZID_FILE
+    try:
+        zid = path.read_text().strip()
+        int(zid, 16)
+    except (OSError, ValueError) as e:
+        raise ValueError(f"{path} does not hold a router id: {e}") from e
+    return zid
 
 
 def read_key(path: Path) -> bytes:
@@ -174,8 +204,9 @@ def router_auth(bus: BusConfig, run: RunConfig | None) -> RouterAuth | None:
     return RouterAuth(d / USERS_FILE, run.run_id if run is not None else "*")
 
 
-def access_control(run_id: str) -> dict[str, Any]:
-    """The router's ACL (Zenoh 1.x ``access_control``) for one run; see the module docstring."""
+def access_control(run_id: str, upstream_zid: str | None = None) -> dict[str, Any]:
+    """The router's ACL (Zenoh 1.x ``access_control``) for one run; see the module docstring.
+    ``upstream_zid``: this is a second router, connected to the main router of that id."""
     root = Topics(run_id).root if run_id != "*" else "ursa/*"
     everyone_reads = {
         "id": "read",
@@ -213,6 +244,17 @@ def access_control(run_id: str) -> dict[str, Any]:
         )
         subjects.append({"id": f"role-{role}", "usernames": [role]})
         policies.append({"rules": [f"own-{role}"], "subjects": [f"role-{role}"]})
+    # a second router's login: it relays its collectors
+    subjects.append({"id": "role-bridge", "usernames": [BRIDGE]})
+    policies.append({"rules": ["read", "delivered", "own-collector"], "subjects": ["role-bridge"]})
+    if upstream_zid is not None:
+        subjects.append({"id": "upstream", "zids": [upstream_zid]})
+        policies.append(
+            {
+                "rules": ["read", "delivered", *(f"own-{r}" for r in ROLES)],
+                "subjects": ["upstream"],
+            }
+        )
     return {
         "enabled": True,
         "default_permission": "deny",

@@ -9,6 +9,8 @@ Run alone: ``python -m services.learner --preset small --bus.router tcp/127.0.0.
 
 from __future__ import annotations
 
+import errno
+import logging
 import signal
 
 from services.common.cli import parse, setup_logging
@@ -18,7 +20,18 @@ from services.learner.service import LearnerArgs, LearnerService
 def main() -> None:
     args = parse(LearnerArgs, description=__doc__)
     setup_logging("learner")
-    svc = LearnerService(args)
+    try:
+        svc = LearnerService(args)
+    except OSError as e:
+        if e.errno not in (errno.ENOSPC, errno.EDQUOT):
+            raise
+        # a restart on a full run volume: say so in one line, not a traceback
+        logging.getLogger("learner").critical(
+            "cannot start: run directory %s is full (%s); free space on its volume",
+            args.run.dir,
+            e,
+        )
+        raise SystemExit(1) from None
     signal.signal(signal.SIGTERM, lambda *_: svc.rt.stop.set())
     signal.signal(signal.SIGINT, lambda *_: svc.rt.stop.set())
     try:

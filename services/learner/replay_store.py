@@ -102,6 +102,8 @@ class ReplayWriter:
         self._file: BinaryIO | None = None
         self._writer: ProtobufMcap | None = None
         self._count = 0
+        self._good = 0
+        """Bytes of the open segment up to the end of its last complete chunk."""
         self.path: Path | None = None
         self._robot = RobotView() if robot_view else None
         self._modelled: set[str] = set()
@@ -113,9 +115,21 @@ class ReplayWriter:
         self._file = open(self.path, "wb")  # noqa: SIM115 - lives until rotation
         self._writer = ProtobufMcap(self._file)
         self._count = 0
+        self._good = 0
         self._modelled = set()
 
     def write(self, chunk: pb.TransitionChunk) -> None:
+        """Append one chunk and flush it. On an ``OSError`` (a full volume: ENOSPC, EDQUOT) the
+        segment is cut back to its last complete chunk and closed, a segment that holds none is
+        removed, and the error is raised again: what is on disk stays readable, and the next
+        call starts a new segment."""
+        try:
+            self._write(chunk)
+        except OSError:
+            self._abandon()
+            raise
+
+    def _write(self, chunk: pb.TransitionChunk) -> None:
         if self._writer is None:
             self._open()
         assert self._writer is not None and self._file is not None
@@ -134,9 +148,29 @@ class ReplayWriter:
         self._writer.flush()
         if self.fsync:
             os.fsync(self._file.fileno())
+        self._good = self._file.tell()
         self._count += 1
         if self._count >= self.segment_chunks:
             self.close()
+
+    def _abandon(self) -> None:
+        """Drop the open segment's partial tail after a failed write (see :meth:`write`)."""
+        f, path, good = self._file, self.path, self._good
+        self._writer, self._file = None, None
+        if f is not None:
+            try:
+                f.close()  # flushes what the writer still buffers: may fail again
+            except OSError:
+                pass
+        if path is None:
+            return
+        try:
+            if good == 0:
+                path.unlink(missing_ok=True)
+            else:
+                os.truncate(path, good)
+        except OSError as e:
+            log.error("could not cut %s back to its last complete chunk: %s", path.name, e)
 
     def close(self) -> None:
         if self._writer is not None and self._file is not None:

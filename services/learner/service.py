@@ -14,6 +14,7 @@ Files:       <run>/replay/segment-*.mcap, <run>/checkpoints/learner.pt + learner
 
 from __future__ import annotations
 
+import errno
 import json
 import math
 import os
@@ -42,7 +43,7 @@ from ursa.config import Config, build_env
 from ursa.learner import Learner, SkillSnapshot
 from ursa.pace import default_slack, insert_budget
 from ursa.replay import Replay
-from ursa.rundir import RunDir, atomic_write
+from ursa.rundir import TEMP_SUFFIX, RunDir, atomic_write
 
 CHUNK_FIELDS = ("obs", "action", "reward", "cost", "safe", "features", "skill")
 
@@ -76,6 +77,11 @@ class LearnerArgs:
     """Intra-op threads of torch on the CPU (env URSA_TORCH_THREADS)."""
     max_updates: int = 0
     """Stop training after this many updates (0: never); ingestion goes on."""
+    storage_retry_s: float = 5.0
+    """After a failed write to the run directory (a full volume), retry this often; chunks
+    received meanwhile stay in the replay and wait, in order, to be written."""
+    max_unpersisted: int = 100_000
+    """Chunks kept waiting for the disk at most; beyond, the oldest are kept in memory only."""
 
 
 class LearnerService:
@@ -115,6 +121,15 @@ class LearnerService:
         self.update_times: deque[float] = deque(maxlen=100)
 
         self.replay_dir = RunDir(args.run.dir).replay
+        self.storage_errors = {"replay": 0, "checkpoint": 0}
+        """Writes to the run directory that failed (OSError: a full volume, ENOSPC), by kind."""
+        self.storage_error = ""
+        """The last such failure, in words; empty once writes succeed again."""
+        self.unpersisted: deque[pb.TransitionChunk] = deque()
+        """Chunks in the replay that could not be written yet (oldest first)."""
+        self.unpersisted_dropped = 0
+        self._storage_retry_at = 0.0
+        self.stale_tmp_removed = self._remove_stale_tmp()
         self._restore()
         self.writer = ReplayWriter(self.replay_dir, args.segment_chunks)
 
@@ -154,6 +169,82 @@ class LearnerService:
         return self.cfg.learner.mode == "ursa"
 
     # ---- persistence -----------------------------------------------------------------------
+    def _remove_stale_tmp(self) -> int:
+        """Temporary files of checkpoint writes cut short (the process was killed between
+        atomic_write's create and rename): the checkpoint beside them is the previous complete
+        one, which is what this process resumes from."""
+        n = 0
+        for p in sorted(self.ckpt_dir.glob(f"*{TEMP_SUFFIX}")) if self.ckpt_dir.is_dir() else []:
+            try:
+                p.unlink()
+                n += 1
+                self.log.warning(
+                    "removed %s: a checkpoint write was cut short (process killed mid-write); "
+                    "resuming from the previous complete checkpoint",
+                    p.name,
+                )
+            except OSError as e:
+                self.log.warning("could not remove stale %s: %s", p, e)
+        return n
+
+    def _storage_failed(self, what: str, e: OSError) -> None:
+        self.storage_errors[what] += 1
+        name = errno.errorcode.get(e.errno or 0, "OSError")
+        full = e.errno in (errno.ENOSPC, errno.EDQUOT)
+        msg = (
+            f"run directory {self.args.run.dir} is full ({name}: {e.strerror or e}) writing the "
+            f"{what}"
+            if full
+            else f"writing the {what} failed ({name}: {e.strerror or e})"
+        )
+        if what == "checkpoint":
+            msg += "; the previous checkpoint is kept"
+        else:
+            msg += (
+                "; segment cut back to its last complete chunk, chunks kept in memory and "
+                f"written in order once the disk takes them (retry every "
+                f"{self.args.storage_retry_s:g} s)"
+            )
+        if msg != self.storage_error:
+            self.log.error("%s", msg)
+        self.storage_error = msg
+        self._storage_retry_at = time.monotonic() + self.args.storage_retry_s
+
+    def _storage_recovered(self, what: str) -> None:
+        if self.storage_error and not self.unpersisted:
+            self.log.warning("run directory writable again (%s written)", what)
+            self.storage_error = ""
+
+    def _persist(self, chunk: pb.TransitionChunk) -> None:
+        """Write one admitted chunk to the replay segments, after any that still wait."""
+        if self.unpersisted:
+            if len(self.unpersisted) >= self.args.max_unpersisted:
+                self.unpersisted.popleft()
+                self.unpersisted_dropped += 1
+            self.unpersisted.append(chunk)
+            self._retry_persist()
+            return
+        try:
+            self.writer.write(chunk)
+        except OSError as e:
+            self.unpersisted.append(chunk)
+            self._storage_failed("replay", e)
+
+    def _retry_persist(self, force: bool = False) -> None:
+        if not self.unpersisted or (not force and time.monotonic() < self._storage_retry_at):
+            return
+        n = 0
+        while self.unpersisted:
+            try:
+                self.writer.write(self.unpersisted[0])
+            except OSError as e:
+                self._storage_failed("replay", e)
+                return
+            self.unpersisted.popleft()
+            n += 1
+        self.log.warning("replay writes resumed: %d waiting chunks written", n)
+        self._storage_recovered("replay")
+
     def _restore(self) -> None:
         ckpt = RunDir(self.args.run.dir).checkpoint
         if ckpt.exists():
@@ -171,16 +262,32 @@ class LearnerService:
                 "restored %d chunks (%d transitions) from %s", n, len(self.replay), self.replay_dir
             )
 
-    def checkpoint(self) -> None:
-        self.ckpt_dir.mkdir(parents=True, exist_ok=True)
-        self.learner.save_checkpoint(RunDir(self.args.run.dir).checkpoint)
+    def checkpoint(self) -> bool:
+        """Write the checkpoint; False (logged, counted, the previous one kept) when the run
+        directory refuses it, e.g. a full volume."""
         state = {
             "samples": self.samples,
             "weights_version": self.weights_version,
             "updates": self.learner.updates,
             "stamp": time.time(),
         }
-        atomic_write(self.state_path, json.dumps(state))
+        try:
+            self.ckpt_dir.mkdir(parents=True, exist_ok=True)
+            self.learner.save_checkpoint(RunDir(self.args.run.dir).checkpoint)
+            atomic_write(self.state_path, json.dumps(state))
+        except Exception as e:
+            # torch.save reports a full disk as a RuntimeError of its zip writer, raised while
+            # handling the OSError: look for the OSError in the chain
+            cause: BaseException | None = e
+            while cause is not None and not isinstance(cause, OSError):
+                cause = cause.__cause__ or cause.__context__
+            if cause is None:
+                raise
+            assert isinstance(cause, OSError)
+            self._storage_failed("checkpoint", cause)
+            return False
+        self._storage_recovered("checkpoint")
+        return True
 
     # ---- bus callbacks ---------------------------------------------------------------------
     def _on_chunk(self, msg: pb.TransitionChunk, key: str) -> None:
@@ -227,7 +334,7 @@ class LearnerService:
             self.log.warning("refused chunk from %s: %s", chunk.collector_id, e)
             return False
         if write:
-            self.writer.write(chunk)
+            self._persist(chunk)
             self.lags.append(max(0, self.weights_version - int(chunk.policy_version)))
         return True
 
@@ -250,9 +357,15 @@ class LearnerService:
             try:
                 chunk = self.inbox.get(timeout=0.1)
             except queue.Empty:
+                with self._replay_lock:
+                    self._retry_persist()
                 continue
-            with self._replay_lock:
-                self._admit(chunk)
+            try:
+                with self._replay_lock:
+                    self._admit(chunk)
+            except Exception:  # never let one chunk stop ingestion
+                self.rt.drops.add("ingest_error")
+                self.log.exception("chunk from %s not ingested", chunk.collector_id)
 
     # ---- training --------------------------------------------------------------------------
     def skill_snapshot(self) -> SkillSnapshot | None:
@@ -388,6 +501,12 @@ class LearnerService:
             "policy_lag": float(np.mean(self.lags)) if self.lags else 0.0,
             "encoder_version": self.learner.vae_version,
             "inbox": self.inbox.qsize(),
+            "storage_ok": float(not self.storage_error),
+            "replay_write_errors": self.storage_errors["replay"],
+            "checkpoint_errors": self.storage_errors["checkpoint"],
+            "replay_unpersisted": len(self.unpersisted),
+            "replay_unpersisted_dropped": self.unpersisted_dropped,
+            "checkpoint_tmp_removed": self.stale_tmp_removed,
         }
         if self.latencies:
             lat = np.asarray(self.latencies) * 1e3
@@ -406,7 +525,12 @@ class LearnerService:
         alive = sorted(Topics.last_chunk(k) for k in self.presence.alive())
         self.rt.publish_stats(
             scalars,
-            labels={"mode": c.mode, "device": c.device, "collectors_alive": ",".join(alive)},
+            labels={
+                "mode": c.mode,
+                "device": c.device,
+                "collectors_alive": ",".join(alive),
+                "storage_error": self.storage_error,
+            },
         )
 
     # ---- loop ------------------------------------------------------------------------------
@@ -451,6 +575,16 @@ class LearnerService:
         if self._ingest.is_alive():
             self._ingest.join(timeout=10.0)
         self.drain()
-        self.writer.close()
+        self._retry_persist(force=True)
+        try:
+            self.writer.close()
+        except OSError as e:  # the footer did not fit: the chunks before it are readable
+            self._storage_failed("replay", e)
+        if self.unpersisted:
+            self.log.error(
+                "%d chunks could not be written to %s before exit (in memory only)",
+                len(self.unpersisted),
+                self.replay_dir,
+            )
         self.checkpoint()
         self.rt.close()

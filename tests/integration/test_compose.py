@@ -98,15 +98,23 @@ def _wait(what: str, fn: Callable[[], T | None], timeout: float, every: float = 
 class Stack:
     """One compose project: commands, the API, and what the API says."""
 
-    def __init__(self, compose: list[str], project: str, env: dict[str, str]) -> None:
+    def __init__(
+        self,
+        compose: list[str],
+        project: str,
+        env: dict[str, str],
+        files: tuple[Path, ...] = (ROOT / "compose.yaml",),
+    ) -> None:
         self.compose_cmd = compose
         self.project = project
         self.env = env
+        self.files = [a for f in files for a in ("-f", str(f))]
+        """``-f FILE`` for compose.yaml and each override."""
         self.api_url = f"http://127.0.0.1:{env['URSA_API_PORT']}"
         self.dashboard_url = f"http://127.0.0.1:{env['URSA_DASHBOARD_PORT']}/"
 
     def compose(self, *args: str, timeout: float = 300, check: bool = True) -> str:
-        cmd = [*self.compose_cmd, "-p", self.project, "-f", str(ROOT / "compose.yaml"), *args]
+        cmd = [*self.compose_cmd, "-p", self.project, *self.files, *args]
         r = subprocess.run(
             cmd, cwd=ROOT, env=self.env, capture_output=True, text=True, timeout=timeout
         )
@@ -167,8 +175,7 @@ class Stack:
                 *self.compose_cmd,
                 "-p",
                 self.project,
-                "-f",
-                str(ROOT / "compose.yaml"),
+                *self.files,
                 "ps",
                 "-a",
                 "-q",
