@@ -47,6 +47,7 @@ from ursa.bounds import Box
 from ursa.kde import kde_sample
 
 SERVICES = ("repertoire", "learner", "evaluator", "dashboard", "api")
+JOB_STATES = ("mapping", "adapting", "done", "failed", "lost")
 MAX_ARRAY_ITEMS = 4096
 
 DESCRIPTION = """\
@@ -677,7 +678,7 @@ def create_app(state: ApiState) -> FastAPI:
                     trial=k,
                     skill_id=int(t.skill_id),
                     skill=[float(v) for v in arr(t.skill)],
-                    ret=t.ret,
+                    ret=finite(t.ret),
                     achieved=[float(v) for v in arr(t.achieved)],
                     violations=int(t.violations),
                     predicted=finite(t.predicted),
@@ -707,7 +708,8 @@ def create_app(state: ApiState) -> FastAPI:
             return m.AdaptJob(
                 job_id=job.job_id,
                 evaluator=job.evaluator_id,
-                state=job.state,  # type: ignore[arg-type]
+                # a state this API does not know (a newer evaluator, an edited file): failed
+                state=job.state if job.state in JOB_STATES else "failed",  # type: ignore[arg-type]
                 stop_reason=job.stop_reason,
                 source=source,  # type: ignore[arg-type]
                 damage=r.damage or "none",
@@ -728,8 +730,8 @@ def create_app(state: ApiState) -> FastAPI:
                 trials=trials,
                 chosen=chosen,
                 predicted_best=best,
-                created=job.created,
-                updated=job.updated,
+                created=finite(job.created),
+                updated=finite(job.updated),
             )
 
         @app.post(

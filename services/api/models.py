@@ -151,7 +151,7 @@ class AdaptTrial(BaseModel):
     trial: int = Field(description="1-based trial number")
     skill_id: int
     skill: list[float] = Field(description="The skill tried (D,)")
-    ret: float = Field(description="Return on the damaged robot")
+    ret: float | None = Field(description="Return on the damaged robot")
     achieved: list[float] = Field(description="Mean φ over the trial (D,)")
     violations: int = Field(description="Unsafe steps")
     predicted: float | None = Field(description="Return the model predicted before the trial")
@@ -192,5 +192,5 @@ class AdaptJob(BaseModel):
     trials: list[AdaptTrial]
     chosen: AdaptSkill | None = Field(description="The best trial so far (the skill kept)")
     predicted_best: AdaptSkill | None = Field(description="The highest predicted mean")
-    created: float
-    updated: float
+    created: float | None = Field(description="Seconds since the Unix epoch")
+    updated: float | None

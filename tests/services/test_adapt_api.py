@@ -195,6 +195,23 @@ def test_a_job_is_read_from_the_run_dir_and_reported_lost_when_its_evaluator_is_
     assert g["state"] == "adapting" and g["source"] == "run_dir"
 
 
+def test_a_corrupt_job_file_is_no_500(app: Any) -> None:
+    client, _, jobs = app
+    jobs.mkdir()
+    job = _done_job("eval")  # alive, but it does not answer for the job: its file is read
+    job.state = "dancing"
+    job.trials[0].ret = float("nan")
+    job.map_skills.data = b"\x00"  # not (3, 2) float32 any more
+    (jobs / f"{JOB}.json").write_text(json_format.MessageToJson(job))
+    r = client.get(f"/adapt/{JOB}")
+    assert r.status_code == 200, r.text
+    g = r.json()
+    assert g["state"] == "failed" and g["trials"][0]["ret"] is None
+    assert g["chosen"]["skill"] == []  # coordinates unknown, the id still reported
+    (jobs / f"{JOB}.json").write_text("{not json")
+    assert client.get(f"/adapt/{JOB}").status_code == 404
+
+
 _B = 2**53 - 1
 
 

@@ -52,9 +52,15 @@ def stack(tmp_path: Path) -> Iterator[tuple[Stack, Any]]:
             peer.close()
 
 
-def _with_snapshot(st: Stack, peer: Any, ev: Evaluator) -> None:
-    peer.put(st.topics.snapshot, codec.encode(snapshot_msg(30, d=2, run_id=RUN)))
-    wait_for(lambda: ev.snapshot is not None, 10, "the snapshot to reach the evaluator")
+def _with_snapshot(st: Stack, peer: Any, ev: Evaluator, d: int = 2) -> None:
+    msg = codec.encode(snapshot_msg(30, d=d, run_id=RUN))
+
+    def arrived() -> bool:
+        # put again until it lands: a subscriber declared just before may not be routed yet
+        peer.put(st.topics.snapshot, msg)
+        return ev.snapshot is not None
+
+    wait_for(arrived, 20, "the snapshot to reach the evaluator", every=0.5)
 
 
 def _req(**kw: Any) -> pb.AdaptRequest:
@@ -298,9 +304,7 @@ def test_a1_job_with_any_frozen_joints(stack: tuple[Stack, Any]) -> None:
     )
     ev = Evaluator(args)
     try:
-        d = cfg.skill_dim
-        peer.put(st.topics.snapshot, codec.encode(snapshot_msg(20, d=d, run_id=RUN)))
-        wait_for(lambda: ev.snapshot is not None, 10, "the snapshot")
+        _with_snapshot(st, peer, ev, d=cfg.skill_dim)
         assert ev.start_adapt(_req(frozen_joints=[12])).error.startswith("invalid:")
         assert ev.start_adapt(_req(frozen_joints=[3, 3])).error.startswith("invalid:")
         job = ev.start_adapt(_req(damage="front_upper", frozen_joints=[10, 4], skills=3))
