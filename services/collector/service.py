@@ -62,11 +62,13 @@ class CollectorArgs:
     backlog_chunks: int = 4000
     """Chunks (and feature batches) kept while nobody subscribes (learner or router down); sent
     in order once a subscriber matches again. The oldest are dropped beyond this."""
-    resend_s: float = 10.0
+    resend_s: float = 30.0
     """Chunks put in this many seconds before the subscribers went away (the router lost) are
-    put again when one matches again: a put racing the loss of the route vanishes silently, and
-    the learner drops the copies that did arrive (by sequence number). At least the link's lease
-    (Zenoh's default 10 s), the longest a dead link can look alive."""
+    put again when one matches again: a put into a link that is dead but not yet known to be
+    vanishes silently, and the learner drops the copies that did arrive (by sequence number).
+    Well above the link's lease (Zenoh's default 10 s): a dead link is noticed only after the
+    lease, the keep-alive period and the scheduling of a loaded host (measured: 10 s lost 4
+    chunks of a collector whose network was cut for 30 s; docs/deploy.md)."""
     max_steps: int = 0
     """Stop after this many control steps (0: run until stopped)."""
     realtime_factor: float = 0.0
@@ -409,6 +411,12 @@ class Collector:
         q = self.backlog[stream]
         if stream == "chunks" and self._route_lost.is_set():
             self._route_lost.clear()
+            self.log.warning(
+                "chunk route lost (learner or router gone): the %d chunks put in the last "
+                "%g s go first when it is back",
+                len(self._recent_chunks),
+                self.args.resend_s,
+            )
             q.extendleft(reversed([p for _, p in self._recent_chunks]))
             self._recent_chunks.clear()
         if not pub.matching_status.matching:

@@ -317,6 +317,8 @@ class LearnerService:
     def _admit(self, chunk: pb.TransitionChunk, write: bool = True) -> bool:
         arrays = {name: codec.from_array(getattr(chunk, name)) for name in CHUNK_FIELDS}
         n = int(arrays["obs"].shape[0])
+        st = self.ledger.streams.get(chunk.collector_id)
+        expected = st.next_seq if st is not None and st.incarnation == chunk.incarnation else None
         ok, _ = self.ledger.admit(
             chunk.collector_id,
             int(chunk.incarnation),
@@ -327,6 +329,14 @@ class LearnerService:
         )
         if not ok:
             return False
+        if write and expected is not None and chunk.seq > expected:
+            self.log.warning(
+                "chunks %d..%d of collector %s (incarnation %d) never arrived",
+                expected,
+                chunk.seq - 1,
+                chunk.collector_id,
+                chunk.incarnation,
+            )
         try:
             self.replay.add(chunk.collector_id, arrays, int(chunk.first_step))
         except ValueError as e:  # another env's or config's data: refuse, never crash
