@@ -120,23 +120,68 @@ def kde_sample_in_box(
     low: np.ndarray,
     high: np.ndarray,
     tries: int = 20,
+    support: float | None = None,
 ) -> np.ndarray:
-    """n samples (n, D) of the KDE truncated to the box [low, high] (D,) each: draws that land
-    outside are drawn again (at most ``tries`` rounds, then clipped into the box).
+    """n samples (n, D) of the KDE truncated to the box [low, high] (D,) each and, with
+    ``support``, to the points' support: draws farther than ``support`` (d_Σ) from every stored
+    point are drawn again. At most ``tries`` rounds; then a draw still off the support is
+    replaced by its kernel's centre, and any draw is clipped into the box.
 
     A provided feature function has a reachable range (the point env's arena); the kernels of
     the archive's edge points reach past it, and a skill outside it cannot be executed. The
-    first round is :func:`kde_sample`'s draw with the same generator calls.
+    support radius does the same for the gaps of the archive: the stored skills are features
+    the robot reached safely, and a draw more than δ from all of them (in the point env, one
+    inside the unsafe disc) asks for a skill no safe execution is known to come within δ of.
+    The first round is :func:`kde_sample`'s draw with the same generator calls.
     """
+    points = np.asarray(points, dtype=np.float64)
     lo, hi = np.asarray(low, np.float64), np.asarray(high, np.float64)
     c = cholesky(regularize_cov(cov), lower=True)
-    out = kde_sample(points, cov, n, rng, chol=c)
+    d = points.shape[1]
+    if len(points) == 0:
+        support = None
+    idx = rng.integers(0, len(points), size=n) if len(points) else np.zeros(n, np.int64)
+    centres = points[idx] if len(points) else np.zeros((n, d))
+    out: np.ndarray = centres + rng.standard_normal((n, d)) @ c.T
+
+    def off(x: np.ndarray) -> np.ndarray:
+        bad = np.asarray(~((x >= lo) & (x <= hi)).all(axis=1))
+        if support is not None and len(x):
+            bad |= nearest_distance(points, cov, x) > support
+        return bad
+
+    bad = off(out)
     for _ in range(tries):
-        bad = ~((out >= lo) & (out <= hi)).all(axis=1)
         if not bad.any():
             break
-        out[bad] = kde_sample(points, cov, int(bad.sum()), rng, chol=c)
+        k = int(bad.sum())
+        j = rng.integers(0, len(points), size=k) if len(points) else np.zeros(k, np.int64)
+        idx[bad] = j
+        draw = (points[j] if len(points) else np.zeros((k, d))) + rng.standard_normal((k, d)) @ c.T
+        out[bad] = draw
+        bad[bad] = off(draw)
+    if support is not None and bad.any():
+        out[bad] = points[idx[bad]]
     return np.clip(out, lo, hi)
+
+
+def support_radius(factor: float | None, delta: float) -> float | None:
+    """The support radius of KDE draws in d_Σ: ``factor`` × δ, or None (no truncation) when no
+    factor is set or δ is undefined (inf or nan: fewer than two stored skills)."""
+    return factor * delta if factor is not None and math.isfinite(delta) else None
+
+
+def nearest_distance(points: np.ndarray, cov: np.ndarray, x: np.ndarray) -> np.ndarray:
+    """d_Σ from each row of x (M, D) to its nearest row of ``points`` (N, D): (M,); inf when
+    N = 0. O(M·N·D), memory bounded by chunking."""
+    x = np.asarray(x, dtype=np.float64)
+    out = np.full(len(x), np.inf)
+    points = np.asarray(points, dtype=np.float64)
+    if len(points) == 0:
+        return out
+    for s, e, d2 in _sq_mahalanobis_chunks(points, regularize_cov(cov), x):
+        out[s:e] = np.sqrt(d2.min(axis=1))
+    return out
 
 
 def _sq_mahalanobis_chunks(

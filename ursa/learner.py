@@ -65,6 +65,7 @@ class _RepertoireLike(Protocol):
     def cov(self) -> np.ndarray: ...
 
     def delta(self) -> float: ...
+    def support(self) -> float | None: ...
 
 
 @dataclass(frozen=True)
@@ -85,6 +86,9 @@ class SkillSnapshot:
     box: tuple[np.ndarray, np.ndarray] | None = None
     """(low, high) (D,) each: the skill box of the feature function (``ursa.bounds``); KDE
     draws are truncated to it. None: the untruncated KDE."""
+    support: float | None = None
+    """KDE draws are truncated to within this d_Σ of a stored skill (``Repertoire.support``,
+    applied with ``box``). None: no support truncation."""
 
     @classmethod
     def from_repertoire(cls, rep: _RepertoireLike) -> SkillSnapshot:
@@ -98,6 +102,7 @@ class SkillSnapshot:
             inputs=np.asarray(inputs, np.float64) if inputs.shape[-1] else None,
             version=int(rep.encoder_version),
             box=None if bounds is None else (np.asarray(bounds.low), np.asarray(bounds.high)),
+            support=rep.support(),
         )
 
 
@@ -326,7 +331,9 @@ class Learner:
         if skills.box is None:
             zs = kde.kde_sample(skills.skills, skills.cov, n, self.np_rng)
         else:
-            zs = kde.kde_sample_in_box(skills.skills, skills.cov, n, self.np_rng, *skills.box)
+            zs = kde.kde_sample_in_box(
+                skills.skills, skills.cov, n, self.np_rng, *skills.box, support=skills.support
+            )
         whiten = kde.whitening_matrix(kde.regularize_cov(skills.cov))
         return _SkillContext(
             torch.as_tensor(zs, dtype=torch.float32, device=self.device),

@@ -59,8 +59,16 @@ class RepertoireConfig:
     None for a provided feature function (no inputs stored)."""
     ridge: float = kde.RIDGE
     """Relative ridge added to a degenerate Σ (see ursa.kde.regularize_cov)."""
+    support_radius: float | None = 0.5
+    """Skills are sampled from the KDE truncated to the archive's support: a draw farther than
+    ``support_radius`` × δ (d_Σ) from every stored skill is drawn again (kde.kde_sample_in_box),
+    in the collectors', the learner's and the evaluations' draws alike. The stored skills are
+    features reached safely and δ is the tolerance of execution: at δ/2 a draw leaves half of
+    δ to the execution's error. None: the whole KDE."""
 
     def __post_init__(self) -> None:
+        if self.support_radius is not None and not self.support_radius > 0:
+            raise ValueError(f"support_radius must be None or > 0, got {self.support_radius}")
         if self.size < 1 or self.dim < 1 or self.n_z < 1 or self.refresh_period < 0:
             raise ValueError(f"invalid RepertoireConfig {self}")
         if self.input_dim is not None and self.input_dim < 1:
@@ -345,6 +353,11 @@ class Repertoire:
         """δ = (n/N_z)^(1/D) · mean d_Σ(z_i, z_i^nn), n the skills stored (N_R once full)."""
         return kde.delta(self.nn_dist, self._n, self.config.n_z, self.config.dim)
 
+    def support(self) -> float | None:
+        """The support radius of the KDE draws in d_Σ (``support_radius`` × δ), or None (no
+        truncation: no radius configured, or fewer than two skills, where δ is undefined)."""
+        return kde.support_radius(self.config.support_radius, self.delta())
+
     def entropy_bound(self) -> float:
         """Eq. (1) lower bound on Ĥ(q) over the n stored skills (nan when empty)."""
         return kde.entropy_lower_bound(self.nn_dist, self.cov, self._n)
@@ -359,7 +372,8 @@ class Repertoire:
         Without ``bounds``: the same draws as ``kde.kde_sample(self.skills, self.cov, n, rng)``,
         without copying the archive or factorizing Σ again. With ``bounds``: the KDE truncated
         to the skill box (``kde.kde_sample_in_box``): a skill outside the range of the feature
-        function cannot be executed."""
+        function cannot be executed; and, with ``config.support_radius``, to the archive's
+        support (:meth:`support`)."""
         self._fresh()
         if self.bounds is not None:
             return kde.kde_sample_in_box(
@@ -369,6 +383,7 @@ class Repertoire:
                 rng,
                 np.asarray(self.bounds.low),
                 np.asarray(self.bounds.high),
+                support=self.support(),
             )
         if self._n == 0:
             return kde.kde_sample(np.zeros((0, self.config.dim)), self._cov, n, rng, self._chol)

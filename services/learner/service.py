@@ -38,7 +38,7 @@ from services.common.config import BusConfig, RunConfig, config_hash, save_resol
 from services.common.runtime import ServiceRuntime
 from services.learner.ingest import IngestLedger
 from services.learner.replay_store import ReplayWriter, read_all
-from ursa import bounds
+from ursa import bounds, kde
 from ursa.config import Config, build_env
 from ursa.learner import Learner, SkillSnapshot
 from ursa.pace import default_slack, insert_budget
@@ -398,6 +398,7 @@ class LearnerService:
             inputs=None if inputs is None or inputs.size == 0 else np.asarray(inputs, np.float64),
             version=int(snap.encoder_version),
             box=(np.asarray(self.skill_box.low), np.asarray(self.skill_box.high)),
+            support=kde.support_radius(self.cfg.repertoire.support_radius, float(snap.delta)),
         )
 
     def can_train(self) -> bool:

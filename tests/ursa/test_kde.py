@@ -113,3 +113,60 @@ def test_mahalanobis_nn_matches_direct() -> None:
     dist, idx = kde.mahalanobis_nn(pts, cov)
     np.testing.assert_array_equal(idx, d2.argmin(1))
     np.testing.assert_allclose(dist, np.sqrt(d2.min(1)), rtol=1e-12)
+
+
+def test_nearest_distance_matches_scipy_mahalanobis() -> None:
+    from scipy.spatial.distance import cdist
+
+    rng = np.random.default_rng(4)
+    pts = rng.normal(size=(300, 3))
+    cov = np.array([[0.5, 0.1, 0.0], [0.1, 0.3, 0.05], [0.0, 0.05, 0.2]])
+    x = rng.normal(size=(40, 3)) * 2.0
+    ref = cdist(x, pts, "mahalanobis", VI=np.linalg.inv(cov)).min(axis=1)
+    np.testing.assert_allclose(kde.nearest_distance(pts, cov, x), ref, rtol=1e-10)
+    assert np.isinf(kde.nearest_distance(np.zeros((0, 3)), cov, x)).all()
+
+
+def test_support_radius_rule() -> None:
+    assert kde.support_radius(0.5, 0.8) == pytest.approx(0.4)
+    assert kde.support_radius(None, 0.8) is None
+    assert kde.support_radius(0.5, math.inf) is None
+    assert kde.support_radius(0.5, math.nan) is None
+
+
+def test_box_sampling_without_support_is_the_plain_kde_when_nothing_leaves_the_box() -> None:
+    pts = np.random.default_rng(1).uniform(-0.5, 0.5, size=(50, 2))
+    cov = np.eye(2) * 1e-4
+    lo, hi = np.full(2, -10.0), np.full(2, 10.0)
+    a = kde.kde_sample_in_box(pts, cov, 500, np.random.default_rng(7), lo, hi)
+    b = kde.kde_sample(pts, cov, 500, np.random.default_rng(7))
+    np.testing.assert_array_equal(a, b)
+
+
+def test_support_truncation_keeps_draws_near_stored_points() -> None:
+    # two clusters 4 kernel widths apart: the plain KDE puts draws in the gap, the truncated
+    # one keeps every draw within the radius of a stored point, in both clusters alike
+    rng = np.random.default_rng(0)
+    pts = np.concatenate(
+        [rng.normal((-1.0, 0.0), 0.02, (20, 2)), rng.normal((1.0, 0.0), 0.02, (20, 2))]
+    )
+    cov = np.eye(2) * 0.25  # kernel std 0.5
+    lo, hi = np.full(2, -3.0), np.full(2, 3.0)
+    plain = kde.kde_sample_in_box(pts, cov, 4000, np.random.default_rng(1), lo, hi)
+    cut = kde.kde_sample_in_box(
+        pts, cov, 4000, np.random.default_rng(1), lo, hi, tries=200, support=0.4
+    )
+    assert (kde.nearest_distance(pts, cov, plain) > 0.4).mean() > 0.8  # P(χ²₂ > 0.16) ≈ 0.92
+    d = kde.nearest_distance(pts, cov, cut)
+    assert d.max() <= 0.4 + 1e-12
+    assert (np.abs(cut[:, 0]) < 0.5).sum() == 0  # nothing in the gap
+    assert 0.45 < (cut[:, 0] < 0).mean() < 0.55
+    # accepted draws spread over the kernels' truncated discs (‖u‖ ≈ (2/3)·0.4 on average for a
+    # uniform disc), not piled on the centres, which only a draw that never met the radius gets
+    assert (d < 1e-9).mean() < 0.01
+    assert d.mean() > 0.2
+    # a radius no draw can meet falls back to the kernels' centres: stored points
+    tiny = kde.kde_sample_in_box(
+        pts, cov, 50, np.random.default_rng(1), lo, hi, support=1e-9, tries=2
+    )
+    assert kde.nearest_distance(pts, cov, tiny).max() < 1e-9

@@ -11,6 +11,7 @@ from numba import njit
 
 from ursa import kde
 from ursa import repertoire as rmod
+from ursa.bounds import Box
 from ursa.repertoire import Repertoire, RepertoireConfig
 
 
@@ -382,3 +383,25 @@ def test_reencode() -> None:
     assert len(rep) == 100
     with pytest.raises(ValueError):
         Repertoire(RepertoireConfig(size=5, dim=2)).reencode(enc, 1)
+
+
+def test_sample_keeps_to_the_archive_support() -> None:
+    # safe skills on a ring around an unsafe disc: the support radius keeps draws off the disc
+    rng = np.random.default_rng(3)
+    ang = rng.uniform(0, 2 * np.pi, 400)
+    ring = np.stack([np.cos(ang), np.sin(ang)], 1) * rng.uniform(0.4, 0.9, (400, 1))
+    box = Box.uniform(2, -1.0, 1.0)
+    cut = Repertoire(RepertoireConfig(size=400, dim=2, support_radius=0.5), bounds=box)
+    full = Repertoire(RepertoireConfig(size=400, dim=2, support_radius=None), bounds=box)
+    cut.commit_many(ring)
+    full.commit_many(ring)
+    assert cut.support() == pytest.approx(0.5 * cut.delta())
+    assert full.support() is None
+    z_cut, z_full = cut.sample(5000, rng), full.sample(5000, rng)
+    radius = cut.support()
+    assert radius is not None
+    assert kde.nearest_distance(cut.skills, cut.cov, z_cut).max() <= radius + 1e-12
+    r_cut, r_full = np.linalg.norm(z_cut, axis=1), np.linalg.norm(z_full, axis=1)
+    assert (r_full < 0.3).mean() > 0.02 and (r_cut < 0.3).mean() < 0.002
+    with pytest.raises(ValueError):
+        RepertoireConfig(support_radius=0.0)
