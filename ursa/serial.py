@@ -224,6 +224,12 @@ class SerialLoop:
                     self.carry, self.obs, self.skill, explore=True, rng=self.rng
                 )
             obs, reward, _, _, info = self.env.step(action)
+            if info.get("rescued"):
+                # a rescue teleports the robot (the collector does the same): the replay starts
+                # a new segment at the righted robot and the policy a new recurrent state
+                self._flush()
+                self._chunk_first += 1
+                self.carry = self.policy.initial_carry()
             feats = info["features"].get(c.feature)
             self._chunk.append(
                 {

@@ -317,12 +317,15 @@ class Collector:
             next_obs, reward, _, _, info = self.env.step(action)
             feat = np.asarray(info["features"][self.feature_key], np.float32)
             safe = bool(info["safe"])
-            if info.get("rescued") and buf["obs"]:
+            if info.get("rescued"):
                 # a rescue teleports the robot: end the chunk and skip a step index so that the
-                # learner's replay starts a new segment at the righted robot
-                self._publish_chunk(buf, chunk_first_step)
-                buf = {k: [] for k in buf}
+                # learner's replay starts a new segment at the righted robot (also when the
+                # rescue falls on a chunk's first step), and start a new recurrent state
+                if buf["obs"]:
+                    self._publish_chunk(buf, chunk_first_step)
+                    buf = {k: [] for k in buf}
                 self.step_offset += 1
+                self.carry = self.policy.initial_carry()
             if not buf["obs"]:
                 chunk_first_step = self.step_count + self.step_offset
             # records follow the world model's convention: the observation after the step with
