@@ -37,6 +37,7 @@ import torch
 from ursa.learner import Learner, SkillSnapshot
 from ursa.learner_config import LearnerConfig, learner_preset
 from ursa.repertoire import Repertoire, RepertoireConfig
+from ursa.threads import limit_threads
 
 OBS, ACT, VAE_IN, D = 46, 12, 13, 3
 IMAG_STARTS = 512
@@ -107,7 +108,8 @@ def main() -> None:
     )
     ap.add_argument("--quick", action="store_true", help="few updates, < 60 s on a CPU")
     args = ap.parse_args()
-    torch.set_num_threads(args.threads or int(os.environ.get("URSA_TORCH_THREADS", "1")))
+    # the pools a learner service sets (services.common.cli.serve), with its torch threads
+    limit_threads(torch_threads=args.threads or int(os.environ.get("URSA_TORCH_THREADS", "1")))
     repeats = args.repeats or 3
     cuda = args.device.startswith("cuda")
     rows = []

@@ -68,11 +68,12 @@ def _lower_priority() -> None:
 
 def _train(args: tuple[str, str]) -> tuple[str, float]:
     """Worker: train one run and save it; returns (run dir, seconds)."""
-    import torch
+    import torch  # noqa: F401 - loaded first, so that its pool is set too
 
     from ursa.eval.loading import SerialRecorder, make_serial_loop, save_serial_run
+    from ursa.threads import limit_threads
 
-    torch.set_num_threads(1)
+    limit_threads()
     root, name = args
     mode, seed = RUNS[name]
     cfg = point_config(mode, seed)

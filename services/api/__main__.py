@@ -11,17 +11,11 @@ Run alone: ``python -m services.api --host 127.0.0.1 --port 8000 --bus.router tc
 from __future__ import annotations
 
 from services.api.service import ApiArgs, ApiService
-from services.common.cli import parse, setup_logging
+from services.common.cli import serve
 
 
 def main() -> None:
-    args = parse(ApiArgs, description=__doc__)
-    setup_logging("api")
-    svc = ApiService(args)
-    try:
-        svc.run()
-    finally:
-        svc.close()
+    serve(ApiArgs, ApiService, "api", __doc__, signals=False)
 
 
 if __name__ == "__main__":

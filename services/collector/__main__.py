@@ -11,22 +11,12 @@ repertoire answers).
 
 from __future__ import annotations
 
-import signal
-
 from services.collector.service import Collector, CollectorArgs
-from services.common.cli import parse, setup_logging
+from services.common.cli import serve
 
 
 def main() -> None:
-    args = parse(CollectorArgs, description=__doc__)
-    setup_logging(f"collector/{args.collector_id}")
-    c = Collector(args)
-    signal.signal(signal.SIGTERM, lambda *_: c.rt.stop.set())
-    signal.signal(signal.SIGINT, lambda *_: c.rt.stop.set())
-    try:
-        c.run()
-    finally:
-        c.close()
+    serve(CollectorArgs, Collector, lambda a: f"collector/{a.collector_id}", __doc__)
 
 
 if __name__ == "__main__":

@@ -21,7 +21,6 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
-import torch
 
 from proto import codec
 from proto import ursa_pb2 as pb
@@ -39,6 +38,7 @@ from ursa.config import PREFILL, Config, build_env
 from ursa.pace import PaceGate
 from ursa.policy import Policy
 from ursa.rundir import RunDir, atomic_write
+from ursa.threads import limit_threads
 
 
 def default_collector_id() -> str:
@@ -100,7 +100,7 @@ class Collector:
         self.task = self.cfg.a1.task if self.cfg.env == "a1" else "point"
         self.damage = (self.cfg.a1.damage or "") if self.cfg.env == "a1" else ""
         self.rng = np.random.default_rng(args.seed + 7919 * self.incarnation)
-        torch.set_num_threads(1)
+        limit_threads()
         self.policy = Policy(
             self.cfg.learner,
             self.env.obs_dim,

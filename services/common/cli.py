@@ -1,19 +1,21 @@
-"""Command-line helpers shared by services: presets, logging, signals."""
+"""Command-line helpers shared by services: presets, logging, and the one entry point
+(:func:`serve`) every service's ``__main__`` calls."""
 
 from __future__ import annotations
 
+import errno
 import logging
 import os
 import signal
 import sys
-import threading
 import typing
-from collections.abc import Sequence
-from typing import Any, TypeVar
+from collections.abc import Callable, Sequence
+from typing import Any, Protocol, TypeVar
 
 import tyro
 
 from ursa.config import PresetName, preset
+from ursa.threads import limit_threads
 
 T = TypeVar("T")
 PRESETS: tuple[PresetName, ...] = typing.get_args(PresetName)
@@ -69,13 +71,54 @@ def setup_logging(name: str) -> logging.Logger:
     return logging.getLogger(name)
 
 
-def stop_event() -> threading.Event:
-    """An event set by SIGTERM or SIGINT."""
-    ev = threading.Event()
+class Service(Protocol):
+    """What :func:`serve` runs: a service whose runtime's ``stop`` event ends ``run``."""
 
-    def _set(*_: Any) -> None:
-        ev.set()
+    @property
+    def rt(self) -> Any: ...
 
-    signal.signal(signal.SIGTERM, _set)
-    signal.signal(signal.SIGINT, _set)
-    return ev
+    def run(self) -> None: ...
+
+    def close(self) -> None: ...
+
+
+A = TypeVar("A")
+
+
+def serve(
+    args_type: type[A],
+    build: Callable[[A], Service],
+    name: str | Callable[[A], str],
+    description: str | None,
+    signals: bool = True,
+) -> None:
+    """The entry point of every service: parse its args (``--preset``/``--env``/``--feature``
+    first), set up logging as ``name``, set its thread pools
+    (:func:`ursa.threads.limit_threads`: 1 each, the learner's torch threads from
+    ``--torch-threads``), build it, stop it on SIGTERM/SIGINT (``signals=False`` where the
+    service's server installs its own handlers), run it, and close it however run ends. A
+    service that cannot start because its run directory's volume is full says so in one line
+    instead of a traceback."""
+    args = parse(args_type, description=description)
+    log = setup_logging(name(args) if callable(name) else name)
+    # before anything spins up a pool; the learner's torch threads come from its args
+    log.info("threads: %s", limit_threads(torch_threads=getattr(args, "torch_threads", 1)))
+    try:
+        svc = build(args)
+    except OSError as e:
+        if e.errno not in (errno.ENOSPC, errno.EDQUOT):
+            raise
+        run = getattr(args, "run", None)
+        log.critical(
+            "cannot start: run directory %s is full (%s); free space on its volume",
+            getattr(run, "dir", "?"),
+            e,
+        )
+        raise SystemExit(1) from None
+    if signals:
+        for sig in (signal.SIGTERM, signal.SIGINT):
+            signal.signal(sig, lambda *_: svc.rt.stop.set())
+    try:
+        svc.run()
+    finally:
+        svc.close()

@@ -8,22 +8,12 @@ Run alone: ``python -m services.dashboard --port 8080 --bus.router tcp/127.0.0.1
 
 from __future__ import annotations
 
-import signal
-
-from services.common.cli import parse, setup_logging
+from services.common.cli import serve
 from services.dashboard.service import Dashboard, DashboardArgs
 
 
 def main() -> None:
-    args = parse(DashboardArgs, description=__doc__)
-    setup_logging("dashboard")
-    d = Dashboard(args)
-    signal.signal(signal.SIGTERM, lambda *_: d.rt.stop.set())
-    signal.signal(signal.SIGINT, lambda *_: d.rt.stop.set())
-    try:
-        d.run()
-    finally:
-        d.close()
+    serve(DashboardArgs, Dashboard, "dashboard", __doc__)
 
 
 if __name__ == "__main__":

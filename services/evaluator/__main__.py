@@ -12,22 +12,12 @@ at random; it answers "unavailable" until a repertoire snapshot exists).
 
 from __future__ import annotations
 
-import signal
-
-from services.common.cli import parse, setup_logging
+from services.common.cli import serve
 from services.evaluator.service import Evaluator, EvaluatorArgs
 
 
 def main() -> None:
-    args = parse(EvaluatorArgs, description=__doc__)
-    setup_logging(f"evaluator/{args.collector_id}")
-    ev = Evaluator(args)
-    signal.signal(signal.SIGTERM, lambda *_: ev.rt.stop.set())
-    signal.signal(signal.SIGINT, lambda *_: ev.rt.stop.set())
-    try:
-        ev.run()
-    finally:
-        ev.close()
+    serve(EvaluatorArgs, Evaluator, lambda a: f"evaluator/{a.collector_id}", __doc__)
 
 
 if __name__ == "__main__":

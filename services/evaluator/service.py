@@ -42,7 +42,6 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-import torch
 import zenoh
 from google.protobuf import json_format
 
@@ -61,6 +60,7 @@ from ursa.envs.base import ResetFreeEnv
 from ursa.eval.rollout import farthest_point_sampling
 from ursa.policy import Policy
 from ursa.rundir import atomic_write
+from ursa.threads import limit_threads
 
 MAPPING, ADAPTING, DONE, FAILED, LOST = "mapping", "adapting", "done", "failed", "lost"
 FINAL_STATES = (DONE, FAILED, LOST)
@@ -128,7 +128,7 @@ class Evaluator:
         self.rt = ServiceRuntime("evaluator", args.collector_id, args.bus, args.run)
         self.log = self.rt.log
         save_resolved(args, args.run, f"evaluator-{args.collector_id}")
-        torch.set_num_threads(1)
+        limit_threads()
         self.feature_key = self.cfg.feature_input_key
         self.skill_dim = self.cfg.skill_dim
         self.damages = allowed_damages(self.cfg.env)

@@ -26,7 +26,6 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
-import torch
 import zenoh
 from safetensors.torch import save as st_save
 
@@ -44,6 +43,7 @@ from ursa.learner import Learner, SkillSnapshot
 from ursa.pace import default_slack, insert_budget
 from ursa.replay import Replay
 from ursa.rundir import TEMP_SUFFIX, RunDir, atomic_write
+from ursa.threads import limit_threads
 
 CHUNK_FIELDS = ("obs", "action", "reward", "cost", "safe", "features", "skill")
 
@@ -93,7 +93,7 @@ class LearnerService:
         validate_with(self.cfg)  # every message decoded is checked against the run's bounds
         self.skill_box = bounds.declared(self.cfg).skills
         """KDE draws for imagination are truncated to the feature function's skill box."""
-        torch.set_num_threads(max(1, args.torch_threads))
+        limit_threads(torch_threads=args.torch_threads)
         self.rt = ServiceRuntime("learner", args.learner_id, args.bus, args.run)
         self.log = self.rt.log
         save_resolved(args, args.run, "learner")

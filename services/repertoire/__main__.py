@@ -10,22 +10,12 @@ restarted on the same run directory it restores its archive.
 
 from __future__ import annotations
 
-import signal
-
-from services.common.cli import parse, setup_logging
+from services.common.cli import serve
 from services.repertoire.service import RepertoireArgs, RepertoireService
 
 
 def main() -> None:
-    args = parse(RepertoireArgs, description=__doc__)
-    setup_logging("repertoire")
-    svc = RepertoireService(args)
-    signal.signal(signal.SIGTERM, lambda *_: svc.rt.stop.set())
-    signal.signal(signal.SIGINT, lambda *_: svc.rt.stop.set())
-    try:
-        svc.run()
-    finally:
-        svc.close()
+    serve(RepertoireArgs, RepertoireService, "repertoire", __doc__)
 
 
 if __name__ == "__main__":

@@ -35,6 +35,12 @@ RUN = "learn"
 
 
 @pytest.fixture(scope="module")
+def ursa_runs(ursa_run: dict[str, Any]) -> list[dict[str, Any]]:
+    """The one run of this module, for the tests written over the seeds' runs."""
+    return [ursa_run]
+
+
+@pytest.fixture(scope="module")
 def ursa_run(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Any]:
     tmp = tmp_path_factory.mktemp("distributed")
     flags = cli_args("ursa-supervised")[4:]  # the stack adds --preset tiny --env point

