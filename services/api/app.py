@@ -42,7 +42,7 @@ from proto import codec
 from proto import ursa_pb2 as pb
 from services.api import models as m
 from services.api.state import ApiState
-from services.dashboard.live import SnapshotView, StatsEntry, finite
+from services.common.live import SnapshotView, StatsEntry, finite
 from ursa.bounds import Box
 from ursa.kde import kde_sample
 

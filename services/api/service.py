@@ -32,12 +32,12 @@ from services.api.bus import BusBackend
 from services.api.state import ApiState
 from services.common.bus import Presence, query_one, safe_handler, validate_with
 from services.common.config import BusConfig, RunConfig, save_resolved
+from services.common.live import LiveState
 from services.common.runtime import ServiceRuntime
-from services.dashboard.live import LiveState
-from services.evaluator.rollout import allowed_damages
 from ursa.adapt import adapt_dir
 from ursa.bounds import declared
 from ursa.config import Config
+from ursa.envs import allowed_damages
 
 
 @dataclass(frozen=True)

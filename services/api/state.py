@@ -14,7 +14,7 @@ from pathlib import Path
 from typing import Any, Protocol
 
 from proto import ursa_pb2 as pb
-from services.dashboard.live import LiveState
+from services.common.live import LiveState
 from ursa.bounds import Box
 
 MAX_JOBS = 256

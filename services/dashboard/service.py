@@ -25,8 +25,8 @@ import viser
 from proto import ursa_pb2 as pb
 from services.common.bus import Presence, query_one, safe_handler, validate_with
 from services.common.config import BusConfig, RunConfig, save_resolved
+from services.common.live import LiveState
 from services.common.runtime import ServiceRuntime
-from services.dashboard.live import LiveState
 from services.dashboard.panels.adapt import AdaptPanel
 from services.dashboard.panels.plots import PlotsPanel
 from services.dashboard.panels.repertoire import RepertoirePanel

@@ -19,17 +19,6 @@ from services.evaluator.acting import Acting
 from ursa import scoring
 from ursa.envs.base import ResetFreeEnv
 
-NO_DAMAGE = ("", "none")
-
-
-def allowed_damages(env: str) -> tuple[str, ...]:
-    """Damage names an evaluation may ask for on ``env`` ("" and "none": intact)."""
-    if env == "a1":
-        from ursa.envs.a1 import DAMAGE_SCENARIOS
-
-        return (*NO_DAMAGE, *sorted(DAMAGE_SCENARIOS))
-    return NO_DAMAGE
-
 
 @dataclass(frozen=True)
 class RunResult:

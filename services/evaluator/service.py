@@ -49,13 +49,14 @@ from proto import codec
 from proto import ursa_pb2 as pb
 from services.common.bus import checked_decode, query_one, reason_of, safe_handler, validate_with
 from services.common.config import BusConfig, RunConfig, config_hash, save_resolved
+from services.common.live import SnapshotView
 from services.common.runtime import ServiceRuntime
-from services.dashboard.live import SnapshotView
 from services.evaluator.acting import Acting, PolicyActing, RandomActing
-from services.evaluator.rollout import allowed_damages, run_skill
+from services.evaluator.rollout import run_skill
 from ursa import adapt, scoring
 from ursa.adapt import ITEParams, Observations, SkillMap
 from ursa.config import Config, build_env
+from ursa.envs import allowed_damages
 from ursa.envs.base import ResetFreeEnv
 from ursa.eval.rollout import farthest_point_sampling
 from ursa.policy import Policy

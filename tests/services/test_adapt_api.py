@@ -23,7 +23,7 @@ from proto import ursa_pb2 as pb
 from proto.topics import Topics
 from services.api.app import create_app
 from services.api.state import ApiState
-from services.dashboard.live import LiveState
+from services.common.live import LiveState
 from ursa.bounds import Box
 
 RUN = "test"

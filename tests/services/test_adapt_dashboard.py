@@ -16,7 +16,7 @@ import viser
 from proto import codec
 from proto import ursa_pb2 as pb
 from services.common.config import RunConfig
-from services.dashboard.live import LiveState
+from services.common.live import LiveState
 from services.dashboard.panels.adapt import JobView, job_markdown
 from services.dashboard.panels.repertoire import colormap
 from services.dashboard.service import Dashboard, DashboardArgs, DashboardView

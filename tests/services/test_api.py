@@ -26,7 +26,7 @@ from services.api.app import create_app
 from services.api.service import ApiArgs, ApiService
 from services.api.state import ApiState
 from services.common.config import RunConfig
-from services.dashboard.live import LiveState
+from services.common.live import LiveState
 from tests.services._stack import snapshot_msg, stats_msg
 from tests.stack import running_stack, wait_for
 from ursa.bounds import Box

@@ -12,8 +12,8 @@ import numpy as np
 import pytest
 import viser
 
-from services.dashboard.history import DecimatingSeries, align
-from services.dashboard.live import LiveState, SnapshotView
+from services.common.history import DecimatingSeries, align
+from services.common.live import LiveState, SnapshotView
 from services.dashboard.panels.plots import plot_layout
 from services.dashboard.panels.repertoire import (
     Frame,

@@ -21,12 +21,13 @@ from services.api.service import ApiArgs, ApiService
 from services.common.bus import query_one
 from services.common.config import RunConfig, config_hash
 from services.evaluator.acting import PolicyActing, RandomActing
-from services.evaluator.rollout import allowed_damages, run_skill
+from services.evaluator.rollout import run_skill
 from services.evaluator.service import Evaluator, EvaluatorArgs
 from tests.services._stack import snapshot_msg
 from tests.stack import Stack, running_stack, wait_for
 from tests.trained import cli_args, point_config
 from ursa.config import Config, build_env, preset
+from ursa.envs import allowed_damages
 from ursa.envs.point import PointEnv
 from ursa.eval.loading import read_checkpoint
 from ursa.learner import Learner

@@ -22,6 +22,8 @@ from ursa.envs.base import ResetFreeEnv
 from ursa.envs.point import PointConfig, PointEnv
 
 ENV_NAMES = ("a1", "point")
+NO_DAMAGE = ("", "none")
+"""Damage names that mean the intact robot."""
 
 __all__ = [
     "ACT_DIM",
@@ -29,6 +31,7 @@ __all__ = [
     "ENV_NAMES",
     "FEATURE_DIMS",
     "JOINT_NAMES",
+    "NO_DAMAGE",
     "OBS_DIM",
     "OBS_LAYOUT",
     "A1Config",
@@ -36,6 +39,7 @@ __all__ = [
     "PointConfig",
     "PointEnv",
     "ResetFreeEnv",
+    "allowed_damages",
     "make_env",
 ]
 
@@ -51,3 +55,11 @@ def make_env(name: str, seed: int = 0, **overrides: Any) -> ResetFreeEnv:
     if name == "point":
         return PointEnv(PointConfig(**overrides), seed=seed)
     raise ValueError(f"unknown env {name!r}; expected one of {ENV_NAMES}")
+
+
+def allowed_damages(env: str) -> tuple[str, ...]:
+    """Damage names an evaluation may ask for on ``env`` (:data:`NO_DAMAGE`: intact; on the A1
+    each of :data:`DAMAGE_SCENARIOS`)."""
+    if env == "a1":
+        return (*NO_DAMAGE, *sorted(DAMAGE_SCENARIOS))
+    return NO_DAMAGE

@@ -18,7 +18,7 @@ import numpy as np
 import viser
 import viser.uplot
 
-from services.dashboard.history import align
+from services.common.history import align
 
 SKIP_KEYS = frozenset({"uptime_s", "incarnation"})
 """Scalars not worth a plot."""

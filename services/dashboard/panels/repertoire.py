@@ -17,7 +17,7 @@ from dataclasses import dataclass
 import numpy as np
 import viser
 
-from services.dashboard.live import CollectorInfo, SnapshotView
+from services.common.live import CollectorInfo, SnapshotView
 
 _SKILL_COLOR = (230, 57, 70)
 _SELECTED_COLOR = (255, 183, 3)

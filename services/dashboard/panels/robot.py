@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 import viser
 
-from services.dashboard.live import CollectorInfo, StatsEntry
+from services.common.live import CollectorInfo, StatsEntry
 
 log = logging.getLogger(__name__)
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 import time
 from collections.abc import Mapping
 
-from services.dashboard.live import CollectorInfo, SnapshotView, StatsEntry
+from services.common.live import CollectorInfo, SnapshotView, StatsEntry
 
 
 def _num(x: float | None, fmt: str = ".0f") -> str:

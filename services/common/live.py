@@ -20,7 +20,7 @@ import numpy as np
 from proto import codec
 from proto import ursa_pb2 as pb
 from proto.topics import Topics
-from services.dashboard.history import DecimatingSeries
+from services.common.history import DecimatingSeries
 from ursa.kde import regularize_cov, whitening_matrix
 
 
