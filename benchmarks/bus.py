@@ -27,7 +27,7 @@ from proto import ursa_pb2 as pb  # noqa: E402
 from services.common.config import RunConfig  # noqa: E402
 from services.learner.replay_store import read_all  # noqa: E402
 from services.learner.service import LearnerArgs, LearnerService  # noqa: E402
-from tests.stack import Stack, StatsWatcher, wait_for  # noqa: E402
+from services.stack import Stack, StatsWatcher, wait_for  # noqa: E402
 from ursa.config import preset  # noqa: E402
 
 

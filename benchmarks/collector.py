@@ -27,7 +27,7 @@ sys.path.insert(0, str(ROOT))
 
 from services.collector.service import Collector, CollectorArgs  # noqa: E402
 from services.common.config import BusConfig, RunConfig  # noqa: E402
-from tests.stack import free_port, wait_port  # noqa: E402
+from services.stack import free_port, wait_port  # noqa: E402
 from ursa.config import build_env, preset  # noqa: E402
 from ursa.learner import Learner  # noqa: E402
 

@@ -30,7 +30,7 @@ sys.path.insert(0, str(ROOT / "benchmarks"))
 
 from learner import measure  # noqa: E402
 
-from tests.stack import Stack, StatsWatcher, wait_for  # noqa: E402
+from services.stack import Stack, StatsWatcher, wait_for  # noqa: E402
 from ursa.config import preset  # noqa: E402
 
 IMAG_STARTS = 512

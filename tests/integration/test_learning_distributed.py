@@ -15,7 +15,7 @@ from typing import Any
 
 import pytest
 
-from tests.stack import StatsWatcher, running_stack, wait_for
+from services.stack import StatsWatcher, running_stack, wait_for
 from tests.trained import cli_args
 
 # The learner-core tests, collected here again against this module's ``ursa_run``.

@@ -10,7 +10,7 @@ from pathlib import Path
 
 import pytest
 
-from tests.stack import StatsWatcher, running_stack, wait_for
+from services.stack import StatsWatcher, running_stack, wait_for
 from ursa.config import preset
 
 pytestmark = [pytest.mark.slow, pytest.mark.timeout(600)]

@@ -15,7 +15,7 @@ import pytest
 from proto.topics import Topics
 from services.common.bus import open_session
 from services.common.config import BusConfig
-from tests.stack import ROOT, StatsWatcher, free_port, wait_for, wait_port
+from services.stack import ROOT, StatsWatcher, free_port, wait_for, wait_port
 
 pytestmark = pytest.mark.slow
 

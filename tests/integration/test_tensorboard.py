@@ -14,7 +14,7 @@ from pathlib import Path
 import pytest
 from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 
-from tests.stack import ROOT, free_port, wait_for
+from services.stack import ROOT, free_port, wait_for
 
 pytestmark = pytest.mark.slow
 

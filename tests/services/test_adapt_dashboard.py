@@ -20,8 +20,8 @@ from services.common.live import LiveState
 from services.dashboard.panels.adapt import JobView, job_markdown
 from services.dashboard.panels.repertoire import colormap
 from services.dashboard.service import Dashboard, DashboardArgs, DashboardView
+from services.stack import free_port, running_stack, wait_for
 from tests.services._stack import snapshot_msg
-from tests.stack import free_port, running_stack, wait_for
 
 RUN = "test"
 

@@ -21,8 +21,8 @@ from proto import ursa_pb2 as pb
 from services.api.service import ApiArgs, ApiService
 from services.common.config import RunConfig
 from services.evaluator.service import DONE, LOST, MAPPING, Evaluator, EvaluatorArgs
+from services.stack import Stack, running_stack, wait_for
 from tests.services._stack import snapshot_msg
-from tests.stack import Stack, running_stack, wait_for
 from ursa import adapt
 from ursa.adapt import ITEParams, SkillMap
 from ursa.config import preset

@@ -27,8 +27,8 @@ from services.api.service import ApiArgs, ApiService
 from services.api.state import ApiState
 from services.common.config import RunConfig
 from services.common.live import LiveState
+from services.stack import running_stack, wait_for
 from tests.services._stack import snapshot_msg, stats_msg
-from tests.stack import running_stack, wait_for
 from ursa.bounds import Box
 from ursa.config import preset
 

@@ -9,7 +9,7 @@ import torch
 
 from services.collector.service import Collector, CollectorArgs
 from services.common.config import RunConfig
-from tests.stack import running_stack
+from services.stack import running_stack
 from ursa.config import preset
 from ursa.learner import Learner
 

@@ -25,8 +25,8 @@ from services.dashboard.panels.repertoire import (
 )
 from services.dashboard.panels.robot import STANDING, robot_pose, xyzw_to_wxyz
 from services.dashboard.service import DashboardArgs, DashboardView
+from services.stack import ROOT, StatsWatcher, free_port, running_stack, wait_for
 from tests.services._stack import find_chromium, headless_chromium, snapshot_msg, stats_msg
-from tests.stack import ROOT, StatsWatcher, free_port, running_stack, wait_for
 
 ARTIFACTS = ROOT / "test-artifacts"
 

@@ -23,8 +23,8 @@ from services.common.config import RunConfig, config_hash
 from services.evaluator.acting import PolicyActing, RandomActing
 from services.evaluator.rollout import run_skill
 from services.evaluator.service import Evaluator, EvaluatorArgs
+from services.stack import Stack, running_stack, wait_for
 from tests.services._stack import snapshot_msg
-from tests.stack import Stack, running_stack, wait_for
 from tests.trained import cli_args, point_config
 from ursa.config import Config, build_env, preset
 from ursa.envs import allowed_damages

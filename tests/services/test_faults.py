@@ -13,7 +13,7 @@ import pytest
 from proto import ursa_pb2 as pb
 from services.common.bus import Presence
 from services.learner.replay_store import read_all
-from tests.stack import Stack, StatsWatcher, running_stack, wait_for
+from services.stack import Stack, StatsWatcher, running_stack, wait_for
 
 pytestmark = pytest.mark.slow
 

@@ -27,7 +27,7 @@ from services.common.bus import open_session
 from services.common.config import BusConfig, RunConfig
 from services.learner.foxglove import a1_urdf_path
 from services.learner.replay_store import ReplayWriter, read_segment
-from tests.stack import Proc, free_port, wait_port
+from services.stack import Proc, free_port, wait_port
 from ursa.config import preset
 from ursa.envs.a1 import JOINT_NAMES, OBS_LAYOUT
 

@@ -9,7 +9,7 @@ import pytest
 
 from proto import codec
 from proto import ursa_pb2 as pb
-from tests.stack import StatsWatcher, running_stack, wait_for
+from services.stack import StatsWatcher, running_stack, wait_for
 
 pytestmark = pytest.mark.slow
 

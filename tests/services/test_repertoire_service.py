@@ -13,7 +13,7 @@ import pytest
 from proto import codec
 from proto import ursa_pb2 as pb
 from services.common.bus import query_one
-from tests.stack import running_stack, wait_for
+from services.stack import running_stack, wait_for
 from ursa.kde import whitening_matrix
 
 pytestmark = pytest.mark.slow

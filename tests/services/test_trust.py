@@ -20,7 +20,7 @@ from proto import ursa_pb2 as pb
 from services.common import secrets
 from services.common.bus import client_config
 from services.common.config import BusConfig
-from tests.stack import StatsWatcher, free_port, running_stack, wait_for, wait_port
+from services.stack import StatsWatcher, free_port, running_stack, wait_for, wait_port
 
 pytestmark = pytest.mark.slow
 
@@ -339,7 +339,7 @@ def _session(ep: str, creds: secrets.Credentials | None) -> zenoh.Session:
 
 def test_authentication_and_access_rules_on_the_router(tmp_path: Path) -> None:
     with running_stack(tmp_path) as st:
-        st.procs["router"] = p = __import__("tests.stack", fromlist=["Proc"]).Proc(
+        st.procs["router"] = p = __import__("services.stack", fromlist=["Proc"]).Proc(
             "router",
             [
                 "-m",

@@ -1,4 +1,5 @@
-"""Helpers for tests that run real URSA processes over a real Zenoh router on loopback."""
+"""A stack of real URSA processes over a real Zenoh router on loopback: the harness of the
+tests (tests/services, tests/integration) and of the benchmarks that run services."""
 
 from __future__ import annotations
 
