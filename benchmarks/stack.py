@@ -55,19 +55,7 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as tmp:
         st = Stack(Path(tmp), run_id="stack", preset="small", env="a1")
         try:
-            st.start_router()
-            st.start("repertoire", "services.repertoire", *flags)
-            st.start("learner", "services.learner", *flags)
-            for i in range(2):
-                st.start(
-                    f"c{i}",
-                    "services.collector",
-                    *flags,
-                    "--collector-id",
-                    f"c{i}",
-                    "--seed",
-                    str(i),
-                )
+            st.start_training(*flags, collectors=2)
             session = st.session()  # kept: a dropped zenoh session closes
             w = StatsWatcher(session, st.topics)
 

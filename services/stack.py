@@ -9,7 +9,7 @@ import socket
 import subprocess
 import sys
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
@@ -133,6 +133,29 @@ class Stack:
         p = Proc(name, ["-m", module, *self.common(), *extra], self.tmp / "logs")
         self.procs[name] = p
         return p
+
+    def start_collectors(self, n: int, *flags: str) -> list[Proc]:
+        """Collectors ``c0`` … ``c{n-1}``, collector i seeded i, each with ``flags``."""
+        return [
+            self.start(
+                f"c{i}", "services.collector", *flags, "--collector-id", f"c{i}", "--seed", str(i)
+            )
+            for i in range(n)
+        ]
+
+    def start_training(
+        self,
+        *flags: str,
+        collectors: int = 2,
+        learner: Sequence[str] = (),
+        collector: Sequence[str] = (),
+    ) -> None:
+        """What trains: the router, the repertoire, the learner and ``collectors`` collectors,
+        every service with ``flags``; ``learner`` and ``collector`` flags for those alone."""
+        self.start_router()
+        self.start("repertoire", "services.repertoire", *flags)
+        self.start("learner", "services.learner", *flags, *learner)
+        self.start_collectors(collectors, *flags, *collector)
 
     def session(self) -> zenoh.Session:
         return open_session(self.bus)

@@ -46,27 +46,13 @@ def ursa_run(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Any]:
     flags = cli_args("ursa-supervised")[4:]  # the stack adds --preset tiny --env point
     start = time.perf_counter()
     with running_stack(tmp, run_id=RUN) as st:
-        st.start_router()
-        st.start("repertoire", "services.repertoire", *flags)
-        learner = st.start(
-            "learner",
-            "services.learner",
+        # unthrottled collectors: the rate limiter (ursa.pace) holds them to the learner's ratio
+        st.start_training(
             *flags,
-            "--max-updates",
-            str(UPDATES),
-            "--publish-every-s",
-            "2",
+            collectors=2,
+            learner=("--max-updates", str(UPDATES), "--publish-every-s", "2"),
         )
-        for i in range(2):
-            st.start(
-                f"c{i}",
-                "services.collector",
-                *flags,
-                "--collector-id",
-                f"c{i}",
-                "--seed",
-                str(i),
-            )  # unthrottled: the rate limiter (ursa.pace) holds them to the learner's ratio
+        learner = st.procs["learner"]
         session = st.session()
         watcher = StatsWatcher(session, st.topics)
         progress: list[tuple[float, float, float]] = []

@@ -21,11 +21,7 @@ TOLERANCE = preset("tiny", "point").collector.pace_tolerance
 
 def _stack(st, pace: str) -> None:  # type: ignore[no-untyped-def]
     flags = ["--core.collector.pace", pace]
-    st.start_router()
-    st.start("repertoire", "services.repertoire", *flags)
-    st.start("learner", "services.learner", *flags, "--stats-hz", "5")
-    for i in range(2):
-        st.start(f"c{i}", "services.collector", *flags, "--collector-id", f"c{i}", "--seed", str(i))
+    st.start_training(*flags, collectors=2, learner=("--stats-hz", "5"))
 
 
 def test_waiting_collectors_keep_the_replay_ratio_at_its_target(tmp_path: Path) -> None:

@@ -296,17 +296,7 @@ def test_dashboard_in_headless_chromium(tmp_path: Path) -> None:
     with running_stack(tmp_path) as st:
         st.start_router()
         st.start("repertoire", "services.repertoire")
-        for i in range(2):
-            st.start(
-                f"c{i}",
-                "services.collector",
-                "--collector-id",
-                f"c{i}",
-                "--seed",
-                str(i),
-                "--realtime-factor",
-                "5",
-            )
+        st.start_collectors(2, "--realtime-factor", "5")
         dash = st.start("dashboard", "services.dashboard", "--port", str(port))
         session = st.session()
         watch = StatsWatcher(session, st.topics)

@@ -35,19 +35,7 @@ def _alive_collectors(w: StatsWatcher) -> set[str]:
 
 
 def _start(st: Stack) -> None:
-    st.start_router()
-    st.start("repertoire", "services.repertoire")
-    st.start("learner", "services.learner", *LEARNER_ARGS)
-    for i in range(2):
-        st.start(
-            f"c{i}",
-            "services.collector",
-            "--collector-id",
-            f"c{i}",
-            "--seed",
-            str(i),
-            *COLLECTOR_ARGS,
-        )
+    st.start_training(collectors=2, learner=LEARNER_ARGS, collector=COLLECTOR_ARGS)
 
 
 def test_collector_killed_leaves_others_running_and_rejoins_with_latest_weights(
