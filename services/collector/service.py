@@ -34,6 +34,7 @@ from services.common.bus import (
 )
 from services.common.config import BusConfig, RunConfig, config_hash, save_resolved
 from services.common.runtime import ServiceRuntime
+from services.common.weights import apply_weights
 from ursa.config import PREFILL, Config, build_env
 from ursa.pace import PaceGate
 from ursa.policy import Policy
@@ -208,25 +209,9 @@ class Collector:
     def _maybe_load_weights(self) -> None:
         with self._weights_lock:
             msg, self._pending_weights = self._pending_weights, None
-        if msg is None or msg.version <= self.policy_version:
-            return
-        if msg.config_hash != self.config_hash:
-            self.rt.drops.add("config_mismatch")
-            self.log.warning(
-                "refused weights %d: learner config %s, mine %s",
-                msg.version,
-                msg.config_hash,
-                self.config_hash,
-            )
-            return
-        try:
-            self.policy.load_weights_bytes(msg.safetensors, version=int(msg.version))
-        except Exception as e:  # wrong shapes or corrupt bytes: keep the current policy
-            self.rt.drops.add("bad_weights")
-            self.log.warning("refused weights %d: %s", msg.version, e)
-            return
-        self.policy_version = int(msg.version)
-        self.log.info("policy weights version %d", self.policy_version)
+        self.policy_version = apply_weights(
+            msg, self.policy, self.policy_version, self.config_hash, self.rt.drops, self.log
+        )
 
     def _request_skill(self) -> None:
         """Ask the repertoire for a KDE skill without waiting: the reply lands in a slot that the

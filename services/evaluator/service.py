@@ -51,6 +51,7 @@ from services.common.bus import checked_decode, query_one, reason_of, safe_handl
 from services.common.config import BusConfig, RunConfig, config_hash, save_resolved
 from services.common.live import SnapshotView
 from services.common.runtime import ServiceRuntime
+from services.common.weights import apply_weights
 from services.evaluator.acting import Acting, PolicyActing, RandomActing
 from services.evaluator.rollout import run_skill
 from ursa import adapt, scoring
@@ -207,25 +208,9 @@ class Evaluator:
                 self._on_weights(msg, self.rt.topics.weights)
         with self._lock:
             msg, self._pending = self._pending, None
-        if msg is None or msg.version <= self.policy_version:
-            return
-        if msg.config_hash != self.config_hash:
-            self.rt.drops.add("config_mismatch")
-            self.log.warning(
-                "refused weights %d: learner config %s, mine %s",
-                msg.version,
-                msg.config_hash,
-                self.config_hash,
-            )
-            return
-        try:
-            self.policy.load_weights_bytes(msg.safetensors, version=int(msg.version))
-        except Exception as e:  # wrong shapes or corrupt bytes: keep the current policy
-            self.rt.drops.add("bad_weights")
-            self.log.warning("refused weights %d: %s", msg.version, e)
-            return
-        self.policy_version = int(msg.version)
-        self.log.info("policy weights version %d", self.policy_version)
+        self.policy_version = apply_weights(
+            msg, self.policy, self.policy_version, self.config_hash, self.rt.drops, self.log
+        )
 
     def _metric(self) -> SnapshotView | None:
         if self.snapshot is None:
