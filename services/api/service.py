@@ -19,10 +19,9 @@ to the service that owns them.
 
 from __future__ import annotations
 
-import os
 import threading
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import uvicorn
 
@@ -31,25 +30,21 @@ from services.api.app import create_app
 from services.api.bus import BusBackend
 from services.api.state import ApiState
 from services.common.bus import Presence, query_one, safe_handler, validate_with
-from services.common.config import BusConfig, RunConfig, save_resolved
+from services.common.config import ServiceArgs, env_field, save_resolved
 from services.common.live import LiveState
 from services.common.runtime import ServiceRuntime
 from ursa.adapt import adapt_dir
 from ursa.bounds import declared
-from ursa.config import Config
 from ursa.envs import allowed_damages
 
 
 @dataclass(frozen=True)
-class ApiArgs:
+class ApiArgs(ServiceArgs):
     """HTTP API settings."""
 
-    core: Config = field(default_factory=Config)
-    bus: BusConfig = field(default_factory=BusConfig)
-    run: RunConfig = field(default_factory=RunConfig)
-    host: str = os.environ.get("URSA_API_HOST", "127.0.0.1")
+    host: str = env_field("URSA_API_HOST", "127.0.0.1")
     """Address the HTTP server binds to (env URSA_API_HOST)."""
-    port: int = int(os.environ.get("URSA_API_PORT", "8000"))
+    port: int = env_field("URSA_API_PORT", "8000", int)
     """Port of the HTTP server (env URSA_API_PORT)."""
     max_eval_steps: int = 5000
     """Largest ``steps`` of ``POST /evaluate`` (422 above)."""

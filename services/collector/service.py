@@ -32,10 +32,15 @@ from services.common.bus import (
     safe_handler,
     validate_with,
 )
-from services.common.config import BusConfig, RunConfig, config_hash, save_resolved
+from services.common.config import (
+    ServiceArgs,
+    config_hash,
+    env_field,
+    save_resolved,
+)
 from services.common.runtime import ServiceRuntime
 from services.common.weights import apply_weights
-from ursa.config import PREFILL, Config, build_env
+from ursa.config import PREFILL, build_env
 from ursa.pace import PaceGate
 from ursa.policy import Policy
 from ursa.rundir import RunDir, atomic_write
@@ -49,16 +54,12 @@ def default_collector_id() -> str:
 
 
 @dataclass(frozen=True)
-class CollectorArgs:
+class CollectorArgs(ServiceArgs):
     """Collector service settings."""
 
-    core: Config = field(default_factory=Config)
-    """The algorithm's config (``--preset`` picks its defaults)."""
-    bus: BusConfig = field(default_factory=BusConfig)
-    run: RunConfig = field(default_factory=RunConfig)
     collector_id: str = field(default_factory=default_collector_id)
     """Unique id of this collector (env URSA_COLLECTOR_ID, default: host name)."""
-    seed: int = int(os.environ.get("URSA_SEED", "0"))
+    seed: int = env_field("URSA_SEED", "0", int)
     """Seed of the environment and of the exploration noise."""
     backlog_chunks: int = 4000
     """Chunks (and feature batches) kept while nobody subscribes (learner or router down); sent

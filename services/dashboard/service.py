@@ -14,17 +14,16 @@ at ``refresh_hz`` (plots at ``plot_hz``, the robot at ``robot_hz``), batching ea
 from __future__ import annotations
 
 import logging
-import os
 import threading
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Any
 
 import viser
 
 from proto import ursa_pb2 as pb
 from services.common.bus import Presence, query_one, safe_handler, validate_with
-from services.common.config import BusConfig, RunConfig, save_resolved
+from services.common.config import ServiceArgs, env_field, save_resolved
 from services.common.live import LiveState
 from services.common.runtime import ServiceRuntime
 from services.dashboard.panels.adapt import AdaptPanel
@@ -36,21 +35,17 @@ from services.dashboard.panels.status import (
     services_markdown,
     summary_markdown,
 )
-from ursa.config import Config
 
 log = logging.getLogger("dashboard")
 
 
 @dataclass(frozen=True)
-class DashboardArgs:
+class DashboardArgs(ServiceArgs):
     """Dashboard service settings."""
 
-    core: Config = field(default_factory=Config)
-    bus: BusConfig = field(default_factory=BusConfig)
-    run: RunConfig = field(default_factory=RunConfig)
-    host: str = os.environ.get("URSA_DASHBOARD_HOST", "127.0.0.1")
+    host: str = env_field("URSA_DASHBOARD_HOST", "127.0.0.1")
     """Address the web server binds to (env URSA_DASHBOARD_HOST)."""
-    port: int = int(os.environ.get("URSA_DASHBOARD_PORT", "8080"))
+    port: int = env_field("URSA_DASHBOARD_PORT", "8080", int)
     """Port of the web page (env URSA_DASHBOARD_PORT)."""
     refresh_hz: float = 4.0
     """How often the tables, the point cloud and the collector markers are updated."""

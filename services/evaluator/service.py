@@ -32,7 +32,6 @@ unfinished when the evaluator starts is marked ``lost``.
 from __future__ import annotations
 
 import dataclasses
-import os
 import threading
 import time
 import uuid
@@ -48,7 +47,12 @@ from google.protobuf import json_format
 from proto import codec
 from proto import ursa_pb2 as pb
 from services.common.bus import checked_decode, query_one, reason_of, safe_handler, validate_with
-from services.common.config import BusConfig, RunConfig, config_hash, save_resolved
+from services.common.config import (
+    ServiceArgs,
+    config_hash,
+    env_field,
+    save_resolved,
+)
 from services.common.live import SnapshotView
 from services.common.runtime import ServiceRuntime
 from services.common.weights import apply_weights
@@ -56,7 +60,7 @@ from services.evaluator.acting import Acting, PolicyActing, RandomActing
 from services.evaluator.rollout import run_skill
 from ursa import adapt, scoring
 from ursa.adapt import ITEParams, Observations, SkillMap
-from ursa.config import Config, build_env
+from ursa.config import build_env
 from ursa.envs import allowed_damages
 from ursa.envs.base import ResetFreeEnv
 from ursa.eval.rollout import farthest_point_sampling
@@ -70,15 +74,12 @@ N_JOINTS = 12
 
 
 @dataclass(frozen=True)
-class EvaluatorArgs:
+class EvaluatorArgs(ServiceArgs):
     """Evaluator service settings."""
 
-    core: Config = field(default_factory=Config)
-    bus: BusConfig = field(default_factory=BusConfig)
-    run: RunConfig = field(default_factory=RunConfig)
-    collector_id: str = os.environ.get("URSA_EVALUATOR_ID", "eval")
+    collector_id: str = env_field("URSA_EVALUATOR_ID", "eval")
     """Id of this evaluation collector (its liveliness token is ``alive/evaluator/{id}``)."""
-    seed: int = int(os.environ.get("URSA_SEED", "0"))
+    seed: int = env_field("URSA_SEED", "0", int)
     """Seed of the evaluations that give none (the n-th such evaluation uses seed + n)."""
     max_steps: int = 5000
     """Largest ``steps`` a request may ask for."""

@@ -17,12 +17,11 @@ from __future__ import annotations
 import errno
 import json
 import math
-import os
 import queue
 import threading
 import time
 from collections import deque
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -33,12 +32,17 @@ from proto import codec
 from proto import ursa_pb2 as pb
 from proto.topics import Topics
 from services.common.bus import Presence, publisher, query_one, safe_handler, validate_with
-from services.common.config import BusConfig, RunConfig, config_hash, save_resolved
+from services.common.config import (
+    ServiceArgs,
+    config_hash,
+    env_field,
+    save_resolved,
+)
 from services.common.runtime import ServiceRuntime
 from services.learner.ingest import IngestLedger
 from services.learner.replay_store import ReplayWriter, read_all
 from ursa import bounds, kde
-from ursa.config import Config, build_env
+from ursa.config import build_env
 from ursa.learner import Learner, SkillSnapshot
 from ursa.pace import default_slack, insert_budget
 from ursa.replay import Replay
@@ -49,13 +53,10 @@ CHUNK_FIELDS = ("obs", "action", "reward", "cost", "safe", "features", "skill")
 
 
 @dataclass(frozen=True)
-class LearnerArgs:
+class LearnerArgs(ServiceArgs):
     """Learner service settings."""
 
-    core: Config = field(default_factory=Config)
-    bus: BusConfig = field(default_factory=BusConfig)
-    run: RunConfig = field(default_factory=RunConfig)
-    learner_id: str = os.environ.get("URSA_LEARNER_ID", "main")
+    learner_id: str = env_field("URSA_LEARNER_ID", "main")
     """Id of this learner in its liveliness token."""
     stats_hz: float = 2.0
     """How often metrics are published."""
@@ -73,7 +74,7 @@ class LearnerArgs:
     """Seconds between two policy-weight publications."""
     checkpoint_every_s: float = 120.0
     """Seconds between two checkpoints (one is also written on SIGTERM)."""
-    torch_threads: int = int(os.environ.get("URSA_TORCH_THREADS", "1"))
+    torch_threads: int = env_field("URSA_TORCH_THREADS", "1", int)
     """Intra-op threads of torch on the CPU (env URSA_TORCH_THREADS)."""
     max_updates: int = 0
     """Stop training after this many updates (0: never); ingestion goes on."""

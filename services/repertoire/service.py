@@ -20,7 +20,7 @@ from __future__ import annotations
 import queue
 import threading
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -36,21 +36,17 @@ from services.common.bus import (
     safe_handler,
     validate_with,
 )
-from services.common.config import BusConfig, RunConfig, save_resolved
+from services.common.config import ServiceArgs, save_resolved
 from services.common.runtime import ServiceRuntime
 from ursa import bounds
-from ursa.config import Config
 from ursa.repertoire import Repertoire
 from ursa.rundir import RunDir
 
 
 @dataclass(frozen=True)
-class RepertoireArgs:
+class RepertoireArgs(ServiceArgs):
     """Repertoire service settings."""
 
-    core: Config = field(default_factory=Config)
-    bus: BusConfig = field(default_factory=BusConfig)
-    run: RunConfig = field(default_factory=RunConfig)
     snapshot_hz: float = 2.0
     """How often the snapshot and stats are published."""
     save_every_s: float = 10.0

@@ -5,6 +5,9 @@ from __future__ import annotations
 
 import dataclasses
 import typing
+from pathlib import Path
+
+import pytest
 
 from services.common.cli import PRESETS
 from services.launcher import UpArgs
@@ -32,3 +35,26 @@ def test_the_learning_tests_train_the_point_preset() -> None:
     tiny = preset("tiny", "point").learner
     assert (cfg.learner.deter, cfg.learner.units) == (tiny.deter, tiny.units)
     assert cfg.learner.delta_scale == 0.25 and cfg.learner.train_ratio == 128.0
+
+
+def test_environment_defaults_are_read_when_the_config_is_made(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """Host, port, ids and endpoints default to their environment variables as they are when
+    a config is made, not when its module was first imported (a test or a launcher that sets
+    them later is obeyed)."""
+    from services.api.service import ApiArgs
+    from services.common.config import BusConfig, RunConfig
+    from services.learner.service import LearnerArgs
+
+    monkeypatch.setenv("URSA_ROUTER", "tcp/10.1.2.3:7447")
+    monkeypatch.setenv("URSA_RUNS_DIR", "/tmp/somewhere")
+    monkeypatch.setenv("URSA_WANDB", "offline")
+    monkeypatch.setenv("URSA_API_PORT", "8123")
+    monkeypatch.setenv("URSA_TORCH_THREADS", "3")
+    assert BusConfig().router == "tcp/10.1.2.3:7447"
+    assert RunConfig().root == Path("/tmp/somewhere") and RunConfig().wandb == "offline"
+    assert ApiArgs().port == 8123 and ApiArgs().bus.router == "tcp/10.1.2.3:7447"
+    assert LearnerArgs().torch_threads == 3
+    monkeypatch.setenv("URSA_WANDB", "bogus")
+    assert RunConfig().wandb == "off"
