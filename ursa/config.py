@@ -65,10 +65,13 @@ class Config:
     """The A1 environment (task, damage, rescue, gains...)."""
     point: PointConfig = field(default_factory=PointConfig)
     """The point environment."""
-    collector: CollectorConfig = field(default_factory=CollectorConfig)
-    repertoire: RepertoireConfig = field(default_factory=RepertoireConfig)
+    collector: CollectorConfig = field(default_factory=lambda: _collector("small"))
+    """How collectors act and report (T, chunk length, rate limiter)."""
+    repertoire: RepertoireConfig = field(default_factory=lambda: _repertoire("small", "a1", "vae"))
+    """The archive of skills (N_R, D, N_z, the KDE's support)."""
     learner: LearnerConfig = field(default_factory=LearnerConfig.small)
-    """World model, critics, multipliers, actor and VAE (``mode`` picks URSA or a baseline)."""
+    """World model, critics, multipliers, actor and VAE (``mode`` picks URSA or a baseline).
+    ``Config()`` is ``preset("small")``: the A1 with the learned feature function."""
 
     @property
     def learned_feature(self) -> bool:
@@ -114,6 +117,16 @@ def with_feature(cfg: Config, feature: str) -> Config:
     return dataclasses.replace(cfg, feature=feature, repertoire=rep, learner=learner)
 
 
+def _collector(name: PresetName) -> CollectorConfig:
+    return CollectorConfig(skill_period=_SKILL_PERIOD[name], chunk_len=_CHUNK_LEN[name])
+
+
+def _repertoire(name: PresetName, env: str, feature: str) -> RepertoireConfig:
+    if feature == "vae":
+        return RepertoireConfig(size=_REPERTOIRE_SIZE[name], dim=3, input_dim=VAE_INPUT_DIM[env])
+    return RepertoireConfig(size=_REPERTOIRE_SIZE[name], dim=PROVIDED_FEATURES[env][feature])
+
+
 def preset(name: PresetName, env: EnvName | None = None, feature: str | None = None) -> Config:
     """The config of a preset, on ``env`` (default a1) with ``feature`` (default: vae on the
     A1, position on the point env)."""
@@ -121,7 +134,7 @@ def preset(name: PresetName, env: EnvName | None = None, feature: str | None = N
     cfg = Config(
         preset=name,
         env=env_name,
-        collector=CollectorConfig(skill_period=_SKILL_PERIOD[name], chunk_len=_CHUNK_LEN[name]),
+        collector=_collector(name),
         repertoire=RepertoireConfig(size=_REPERTOIRE_SIZE[name]),
         learner=learner_preset(name),
     )
