@@ -33,7 +33,7 @@ from ursa.adapt import AdaptResult, ITEParams, SkillMap
 from ursa.envs.a1 import DAMAGE_SCENARIOS, JOINT_NAMES
 from ursa.eval.common import distinct_skills, pyplot, save_figure, write_csv, write_json
 from ursa.eval.loading import LoadedRun
-from ursa.eval.rollout import execute_skills
+from ursa.eval.rollout import execute_skills, trials_on
 from ursa.rundir import RunDir
 
 INTACT = "intact"
@@ -111,20 +111,7 @@ def intact_map(
         if got is not None:
             return got[0], {"cached": True, "path": path, "key": key}
     env = run.env(seed=seed, damage="", rescue=rescue)
-    try:
-        r = execute_skills(
-            policy,
-            env,
-            skills,
-            steps,
-            restand=True,
-            explore=explore,
-            seed=seed,
-            progress=progress,
-            desc=f"{run.name} intact map",
-        )
-    finally:
-        env.close()
+    r = trials_on(env, policy, skills, steps, explore, seed, progress, f"{run.name} intact map")
     m = SkillMap(skills, r.returns, ids)
     if path is not None:
         adapt.save_map(
@@ -295,21 +282,16 @@ def run_adapt(
         }
         target = None
         if reference:
-            env = _env(run, sc, seed, rescue)
-            try:
-                r = execute_skills(
-                    run.require_policy(),
-                    env,
-                    m.skills,
-                    t,
-                    restand=True,
-                    explore=explore,
-                    seed=seed,
-                    progress=progress,
-                    desc=f"{run.name} {sc.label} reference",
-                )
-            finally:
-                env.close()
+            r = trials_on(
+                _env(run, sc, seed, rescue),
+                run.require_policy(),
+                m.skills,
+                t,
+                explore,
+                seed,
+                progress,
+                f"{run.name} {sc.label} reference",
+            )
             nonfinite += r.nonfinite_actions
             best = int(np.argmax(r.returns))
             ref = float(r.returns[best])

@@ -22,7 +22,7 @@ from ursa import scoring
 from ursa.envs.a1 import DAMAGE_SCENARIOS
 from ursa.eval.common import distinct_skills, pyplot, save_figure, write_csv, write_json
 from ursa.eval.loading import LoadedRun
-from ursa.eval.rollout import execute_skills
+from ursa.eval.rollout import trials_on
 
 INTACT = "intact"
 
@@ -67,20 +67,7 @@ def evaluate_damage(
     out = []
     for sc in scenarios:
         env = run.env(seed=seed, damage="" if sc == INTACT else sc, rescue=rescue)
-        try:
-            r = execute_skills(
-                policy,
-                env,
-                skills,
-                steps,
-                restand=True,
-                explore=explore,
-                seed=seed,
-                progress=progress,
-                desc=f"{run.name} {sc}",
-            )
-        finally:
-            env.close()
+        r = trials_on(env, policy, skills, steps, explore, seed, progress, f"{run.name} {sc}")
         if run.uses_skills:
             best = int(np.argmax(r.returns))
             out.append(

@@ -208,3 +208,31 @@ def execute_skills(
 def skill_distance(achieved: np.ndarray, skills: np.ndarray, cov: np.ndarray) -> np.ndarray:
     """Mahalanobis distance ‖achieved − z‖_Σ (K,) in the metric of δ (:mod:`ursa.scoring`)."""
     return scoring.skill_distance(achieved, skills, cov)
+
+
+def trials_on(
+    env: ResetFreeEnv,
+    policy: Policy | None,
+    skills: np.ndarray,
+    steps: int,
+    explore: bool = scoring.EXPLORE,
+    seed: int = 0,
+    progress: bool = True,
+    desc: str = "skills",
+) -> Rollouts:
+    """Each skill of ``skills`` (K, D) as an independent trial (:func:`execute_skills` with
+    ``restand``) on ``env``, which is closed afterwards: a damage scenario's evaluation."""
+    try:
+        return execute_skills(
+            policy,
+            env,
+            skills,
+            steps,
+            restand=True,
+            explore=explore,
+            seed=seed,
+            progress=progress,
+            desc=desc,
+        )
+    finally:
+        env.close()
