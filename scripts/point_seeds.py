@@ -26,13 +26,14 @@ sys.path.insert(0, str(ROOT))
 
 def _one(job: tuple[str, str, int]) -> dict[str, Any]:
     import numpy as np
-    import torch
+    import torch  # noqa: F401 - loaded first, so that its pool is set too
 
     from tests import trained
     from tests.ursa.learner.test_learning import assess
     from ursa.eval.loading import SerialRecorder, make_serial_loop, save_serial_run
+    from ursa.threads import limit_threads
 
-    torch.set_num_threads(1)
+    limit_threads()
     root, mode, seed = job
     cfg = trained.point_config(mode, seed)  # type: ignore[arg-type]
     t0 = time.perf_counter()
