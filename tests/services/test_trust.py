@@ -53,7 +53,9 @@ def _reframed(msg: Message) -> bytes:
 
 def _scale(a: pb.Array, factor: float, nan: bool = False) -> pb.Array:
     x = np.array(codec.from_array(a), copy=True)
-    x.flat[0] = np.nan if nan else x.flat[0] * factor + factor
+    # |x|+1 scaled: out of the declared box whatever the first value was (x·f + f was not: an
+    # action of -1 scaled by 5 gave 0, a legitimate value the learner then accepted)
+    x.flat[0] = np.nan if nan else (abs(float(x.flat[0])) + 1.0) * factor
     return codec.to_array(x)
 
 
