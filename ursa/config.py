@@ -99,17 +99,23 @@ TRAIN_STEPS = {"point": 12_000}
 3000 updates at train_ratio 128 with batches of 16 × 32."""
 
 
+def _feature_dims(env: str, feature: str) -> tuple[int, int | None]:
+    """(D, F) of a feature function on ``env``: the skill dimension and the size of the VAE's
+    input (None for a provided feature)."""
+    if feature == "vae":
+        if env not in VAE_INPUT_DIM:
+            raise ValueError(f"the learned feature function needs the A1, not {env!r}")
+        return 3, VAE_INPUT_DIM[env]
+    dims = PROVIDED_FEATURES[env]
+    if feature not in dims:
+        raise ValueError(f"env {env!r} provides {sorted(dims)}, not {feature!r}")
+    return dims[feature], None
+
+
 def with_feature(cfg: Config, feature: str) -> Config:
     """Set the feature function and the repertoire dimensions that follow from it."""
-    if feature == "vae":
-        if cfg.env not in VAE_INPUT_DIM:
-            raise ValueError(f"the learned feature function needs the A1, not {cfg.env!r}")
-        rep = dataclasses.replace(cfg.repertoire, dim=3, input_dim=VAE_INPUT_DIM[cfg.env])
-    else:
-        dims = PROVIDED_FEATURES[cfg.env]
-        if feature not in dims:
-            raise ValueError(f"env {cfg.env!r} provides {sorted(dims)}, not {feature!r}")
-        rep = dataclasses.replace(cfg.repertoire, dim=dims[feature], input_dim=None)
+    dim, input_dim = _feature_dims(cfg.env, feature)
+    rep = dataclasses.replace(cfg.repertoire, dim=dim, input_dim=input_dim)
     mode = cfg.learner.mode
     if mode != "daydreamer":
         mode = "ursa" if feature == "vae" else "ursa-supervised"
@@ -122,9 +128,8 @@ def _collector(name: PresetName) -> CollectorConfig:
 
 
 def _repertoire(name: PresetName, env: str, feature: str) -> RepertoireConfig:
-    if feature == "vae":
-        return RepertoireConfig(size=_REPERTOIRE_SIZE[name], dim=3, input_dim=VAE_INPUT_DIM[env])
-    return RepertoireConfig(size=_REPERTOIRE_SIZE[name], dim=PROVIDED_FEATURES[env][feature])
+    dim, input_dim = _feature_dims(env, feature)
+    return RepertoireConfig(size=_REPERTOIRE_SIZE[name], dim=dim, input_dim=input_dim)
 
 
 def preset(name: PresetName, env: EnvName | None = None, feature: str | None = None) -> Config:
