@@ -1,9 +1,11 @@
 """Learner updates per second for the ``small`` and ``paper`` presets, split by phase.
 
 Claims, each measured in the same run on the same device and thread count:
-- the REINFORCE actor (``actor_grad="reinforce"``, the default) does the same work per update
-  as backpropagation through the dynamics (``"dynamics"``, the update before it), 512
-  imagination starts × 15 steps at ``small`` sizes, in a fraction of the time (the ratio);
+- the preset's update (``actor_grad="dynamics"``, ``compute_dtype="auto"``: bfloat16 layers on
+  CPUs with AMX-BF16 and on GPUs) against the same update in float32, 512 imagination starts ×
+  15 steps at ``small`` sizes (``bf16_ratio``);
+- the REINFORCE actor (``actor_grad="reinforce"``) does the same work per update as
+  backpropagation through the dynamics in a fraction of the time (``dynamics_ratio``);
 - one URSA update (world model + imagination with V, ψ, C, λ1, λ2 and the actor + VAE) costs a
   bounded multiple of the same learner in ``daydreamer`` mode (world model + reward-only
   actor-critic), with the time split between world model, imagination, actor, critics,
@@ -20,8 +22,8 @@ repertoire snapshot of N_R = 5000 skills; no env is stepped, so this times the l
     .venv/bin/python benchmarks/learner.py --quick    # < 60 s on a CPU
     .venv/bin/python benchmarks/learner.py --device cpu --presets small --updates 20
 
-The last line is ``RESULT updates_per_s=<small, ursa mode, 512 starts> ...
-dynamics_ratio=<reinforce ÷ dynamics updates/s>``.
+The last line is ``RESULT updates_per_s=<small, ursa mode, the preset's update, 512 starts>
+... bf16_ratio=<preset ÷ float32> dynamics_ratio=<reinforce ÷ dynamics updates/s>``.
 """
 
 from __future__ import annotations
@@ -36,6 +38,7 @@ import torch
 
 from ursa.learner import Learner, SkillSnapshot
 from ursa.learner_config import LearnerConfig, learner_preset
+from ursa.networks import resolve_compute_dtype
 from ursa.repertoire import Repertoire, RepertoireConfig
 from ursa.threads import limit_threads
 
@@ -122,26 +125,31 @@ def main() -> None:
         else:
             n = 50 if name == "small" or cuda else 5
         warm = 1 if args.quick else 3
-        variants = [("ursa", "reinforce"), ("ursa", "dynamics"), ("daydreamer", "reinforce")]
+        dt = base.compute_dtype
+        # (label, mode, actor gradient, compute dtype); the first is the preset's own update
+        variants = [
+            ("ursa", "ursa", "dynamics", dt),
+            ("ursa-fp32", "ursa", "dynamics", "float32"),
+            ("ursa-reinforce", "ursa", "reinforce", dt),
+            ("daydreamer", "daydreamer", "dynamics", dt),
+        ]
         if args.quick and name != "small" and not cuda:
             variants = variants[:1]  # the CPU quick run keeps the paper preset to one update
-        runs: dict[tuple[str, str], list[dict[str, float]]] = {v: [] for v in variants}
+        runs: dict[str, list[dict[str, float]]] = {v[0]: [] for v in variants}
         for _ in range(repeats if name == "small" or cuda else 1):
-            for mode, grad in variants:  # interleaved, so that load hits every side alike
+            for label, mode, grad, dtype in variants:  # interleaved: load hits every side alike
                 cfg = dataclasses.replace(
                     base,
                     mode=mode,  # type: ignore[arg-type]
                     actor_grad=grad,  # type: ignore[arg-type]
+                    compute_dtype=dtype,
                     imag_starts=IMAG_STARTS,
                 )
                 r = measure(cfg, n, warm)
-                runs[(mode, grad)].append(r)
-                print(
-                    f"measured {name}/{mode}/{grad}: {r['updates_per_s']:.3f} updates/s", flush=True
-                )
-        for (mode, grad), rs in runs.items():
+                runs[label].append(r)
+                print(f"measured {name}/{label}: {r['updates_per_s']:.3f} updates/s", flush=True)
+        for label, rs in runs.items():
             best = sorted(rs, key=lambda r: r["updates_per_s"])[len(rs) // 2]  # the median
-            label = mode if grad == "reinforce" else f"{mode}-bptt"
             rows.append((name, label, best))
 
     print(
@@ -168,9 +176,14 @@ def main() -> None:
             wm_share = u["wm"] / u["s_per_update"]
             print(f"{name}: world model {100 * wm_share:.0f}% of an URSA update")
             out.append(f"{name}_updates_per_s={u['updates_per_s']:.3f}")
-        b = res.get((name, "ursa-bptt"))
-        if u and b:
-            ratio = u["updates_per_s"] / b["updates_per_s"]
+        f32 = res.get((name, "ursa-fp32"))
+        if u and f32:
+            ratio = u["updates_per_s"] / f32["updates_per_s"]
+            print(f"{name}: the preset's compute dtype runs {ratio:.2f}x the float32 updates/s")
+            out.append(f"{name}_bf16_ratio={ratio:.2f}")
+        rf = res.get((name, "ursa-reinforce"))
+        if u and rf:
+            ratio = rf["updates_per_s"] / u["updates_per_s"]
             print(
                 f"{name}: the REINFORCE update runs {ratio:.2f}x the updates/s of "
                 f"backpropagation through the dynamics"
@@ -178,7 +191,11 @@ def main() -> None:
             out.append(f"{name}_dynamics_ratio={ratio:.2f}")
     small = res.get(("small", "ursa"))
     first = f"updates_per_s={small['updates_per_s']:.3f}" if small else "updates_per_s=nan"
-    print("RESULT " + " ".join([first, *out, f"device={args.device}"]))
+    small_dtype = resolve_compute_dtype(
+        learner_preset("small").compute_dtype, torch.device(args.device)
+    )
+    compute = "bfloat16" if small_dtype is torch.bfloat16 else "float32"
+    print("RESULT " + " ".join([first, *out, f"device={args.device}", f"compute={compute}"]))
 
 
 if __name__ == "__main__":

@@ -11,6 +11,7 @@ Two seeds train at a time (one process each, one torch thread each).
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import multiprocessing
 import platform
@@ -24,7 +25,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 
-def _one(job: tuple[str, str, int]) -> dict[str, Any]:
+def _one(job: tuple[str, str, int, dict[str, str]]) -> dict[str, Any]:
     import numpy as np
     import torch  # noqa: F401 - loaded first, so that its pool is set too
 
@@ -34,8 +35,11 @@ def _one(job: tuple[str, str, int]) -> dict[str, Any]:
     from ursa.threads import limit_threads
 
     limit_threads()
-    root, mode, seed = job
+    root, mode, seed, learner = job
     cfg = trained.point_config(mode, seed)  # type: ignore[arg-type]
+    if learner:  # a variant of the recipe (e.g. another compute dtype or actor gradient)
+        new = dataclasses.replace(cfg.learner, **learner)  # type: ignore[arg-type]
+        cfg = dataclasses.replace(cfg, learner=new)
     t0 = time.perf_counter()
     loop = make_serial_loop(cfg, prefill=trained.PREFILL_STEPS, seed=seed)
     rec = SerialRecorder(loop)
@@ -66,9 +70,22 @@ def main() -> None:
     ap.add_argument("--out", type=Path, default=ROOT / "docs/results/point_seeds.json")
     ap.add_argument("--runs", type=Path, default=Path("/tmp/ursa-point-seeds"))
     ap.add_argument("--workers", type=int, default=2)
+    ap.add_argument(
+        "--compute-dtype",
+        default=None,
+        help="the learner's compute_dtype instead of the recipe's (float32, bfloat16, auto)",
+    )
+    ap.add_argument(
+        "--actor-grad", default=None, help="the learner's actor_grad instead of the recipe's"
+    )
     a = ap.parse_args()
-    jobs = [(str(a.runs), "ursa-supervised", s) for s in a.seeds]
-    jobs.append((str(a.runs), "daydreamer", a.seeds[0]))
+    learner = {
+        k: v
+        for k, v in (("compute_dtype", a.compute_dtype), ("actor_grad", a.actor_grad))
+        if v is not None
+    }
+    jobs = [(str(a.runs), "ursa-supervised", s, learner) for s in a.seeds]
+    jobs.append((str(a.runs), "daydreamer", a.seeds[0], learner))
     ctx = multiprocessing.get_context("spawn")
     with ProcessPoolExecutor(a.workers, mp_context=ctx) as ex:
         rows = list(ex.map(_one, jobs))
@@ -93,6 +110,7 @@ def main() -> None:
     within = np.array([r["within_delta"] for r in ursa])
     summary = {
         "seeds": a.seeds,
+        "learner_overrides": learner,
         "machine": f"{platform.processor() or platform.machine()}, {multiprocessing.cpu_count()} "
         "cores",
         "within_delta": within.tolist(),

@@ -23,7 +23,6 @@ See docs/learner.md for the choices and their reasons.
 from __future__ import annotations
 
 import contextlib
-import copy
 import os
 import time
 from collections.abc import Iterator, Mapping
@@ -37,17 +36,19 @@ from torch import nn
 from ursa import kde
 from ursa.agent import (
     Actor,
+    Critics,
     Multiplier,
     ReturnNorm,
-    SFCritic,
-    TwoHotCritic,
     actor_objective,
+    frozen_copy,
+    joint_input,
     lambda_return,
     mahalanobis,
     whitened_sq,
 )
 from ursa.distributions import normal_entropy, tanh_normal_logp, two_hot_loss2, two_hot_mean
 from ursa.learner_config import LearnerConfig
+from ursa.networks import compute_dtype, resolve_compute_dtype
 from ursa.policy import pack_policy_weights
 from ursa.rundir import atomic_write
 from ursa.vae import VAE
@@ -125,18 +126,6 @@ class _Losses:
     multipliers: torch.Tensor | None
 
 
-def _slow_copy(net: nn.Module) -> nn.Module:
-    slow = copy.deepcopy(net)
-    slow.requires_grad_(False)
-    return slow
-
-
-@torch.no_grad()
-def _ema(slow: nn.Module, fast: nn.Module, rate: float) -> None:
-    for ps, pf in zip(slow.parameters(), fast.parameters(), strict=True):
-        ps.lerp_(pf, rate)
-
-
 def _clip_step(opt: torch.optim.Optimizer, params: list[nn.Parameter], clip: float) -> float:
     norm = float(torch.nn.utils.clip_grad_norm_(params, clip))
     opt.step()
@@ -168,6 +157,8 @@ class Learner:
             skill_dim = c.skill_dim if c.mode == "ursa" else feat_in_dim
         self.skill_dim = int(skill_dim)
         self.device = torch.device(c.device)
+        self.compute = resolve_compute_dtype(c.compute_dtype, self.device)
+        """The dtype the networks' layers run in during an update (None: float32)."""
         self.profile = False
         """Synchronise the device around each timed phase (accurate GPU timings, slower)."""
         dev = self.device
@@ -177,35 +168,28 @@ class Learner:
             self.wm = WorldModel(c, obs_dim, act_dim, self.skill_dim, cost_head=skills_on).to(dev)
             f, d = self.wm.feat_dim, self.skill_dim
             self.actor = Actor(c, f, d, act_dim).to(dev)
-            bins = self.wm.bins
-            self.value = TwoHotCritic(c, f, d, bins).to(dev)
-            self.value_slow = _slow_copy(self.value)
-            self.sf: SFCritic | None = None
-            self.cost: TwoHotCritic | None = None
+            self.critics = Critics(c, f, d, self.wm.bins, skills=skills_on).to(dev)
             self.lam1: Multiplier | None = None
             self.lam2: Multiplier | None = None
             if skills_on:
-                self.sf = SFCritic(c, f, d).to(dev)
-                self.cost = TwoHotCritic(c, f, d, bins).to(dev)
                 self.lam1 = Multiplier(c, f, d).to(dev)
                 self.lam2 = Multiplier(c, f, d).to(dev)
-            self.sf_slow = _slow_copy(self.sf) if self.sf is not None else None
-            self.cost_slow = _slow_copy(self.cost) if self.cost is not None else None
             self.vae: VAE | None = None
             self.vae_pub: VAE | None = None
             if c.mode == "ursa":
                 self.vae = VAE(feat_in_dim, d, c.vae_units, c.vae_layers).to(dev)
-                self.vae_pub = _slow_copy(self.vae)  # type: ignore[assignment]
+                self.vae_pub = frozen_copy(self.vae)
         self.retnorm_v = ReturnNorm(c.retnorm_rate, c.retnorm_limit).to(dev)
         self.retnorm_c = ReturnNorm(c.retnorm_rate, c.retnorm_limit).to(dev)
 
         def adam(mods: list[nn.Module], lr: float, eps: float) -> torch.optim.Adam:
             return torch.optim.Adam([p for m in mods for p in m.parameters()], lr=lr, eps=eps)
 
-        self.critics: list[nn.Module] = [m for m in (self.value, self.sf, self.cost) if m]
         self.model_opt = adam([self.wm], c.model_lr, c.model_eps)
         self.actor_opt = adam([self.actor], c.actor_lr, c.ac_eps)
-        self.critic_opt = adam(self.critics, c.critic_lr, c.ac_eps)
+        self.critic_opt = torch.optim.Adam(
+            self.critics.online_parameters(), lr=c.critic_lr, eps=c.ac_eps
+        )
         self.lagrange_opt = (
             adam([self.lam1, self.lam2], c.lagrange_lr, c.ac_eps)  # type: ignore[list-item]
             if self.lam1 is not None
@@ -276,17 +260,18 @@ class Learner:
             raise ValueError(f"mode {c.mode!r} needs a SkillSnapshot")
         times: dict[str, float] = {}
         metrics: dict[str, torch.Tensor | float] = {}
-        with self._phase("wm", times):
-            h, z = self._world_model_step(self._tensors(batch), metrics)
-        with self._phase("imagination", times):
-            ctx = self._skill_context(h.shape[0], skills)
-            losses = self._imagination_losses(h, z, ctx, metrics)
-        with self._phase("actor", times):
-            self._actor_step(losses.actor, metrics)
-        with self._phase("critics", times):
-            self._critic_step(losses.critic)
-        with self._phase("multipliers", times):
-            self._multiplier_step(losses.multipliers)
+        with compute_dtype(self.compute):
+            with self._phase("wm", times):
+                h, z = self._world_model_step(self._tensors(batch), metrics)
+            with self._phase("imagination", times):
+                ctx = self._skill_context(h.shape[0], skills)
+                losses = self._imagination_losses(h, z, ctx, metrics)
+            with self._phase("actor", times):
+                self._actor_step(losses.actor, metrics)
+            with self._phase("critics", times):
+                self._critic_step(losses.critic)
+            with self._phase("multipliers", times):
+                self._multiplier_step(losses.multipliers)
         with self._phase("vae", times):
             if self.vae is not None and skills is not None and skills.inputs is not None:
                 metrics.update(self._vae_step(skills.inputs))
@@ -379,35 +364,38 @@ class Learner:
         # Returns bootstrap from the online critics (DreamerV3, QDAC-MB); the slow critics only
         # regularise the critics' outputs. One critic forward serves the returns and the critic
         # losses.
-        v_logits = self.value.logits(feat, sk)
+        x = joint_input(feat, sk)  # (H + 1, N, F + D), one cast for every critic
+        xd = x[:-1].detach()
+        online = self.critics.online(x, sk)
+        slow = self.critics.slow(xd, skd)
+        v_logits = online.value_logits
         v_all = two_hot_mean(v_logits, bins)
         ret_v = lambda_return(pred["reward"], grad_or_not(v_all), c.discount, c.return_lambda)
         self.retnorm_v.update(ret_v)
         scale_v = self.retnorm_v.scale()
         objective = ret_v / scale_v
         baseline = v_all[:-1].detach() / scale_v
-        with torch.no_grad():
-            slow_v = self.value_slow(fd, skd)
+        slow_v = two_hot_mean(slow.value_logits, bins)
         critic_loss = two_hot_loss2(v_logits[:-1], ret_v, slow_v, c.slow_critic_reg, bins)
         weight = c.discount ** torch.arange(hor, device=self.device, dtype=torch.float32)
         weight = weight.unsqueeze(1)
         metrics["critic/value"] = (weight * critic_loss).mean().detach()
         lam_loss: torch.Tensor | None = None
-        if self.sf is not None and self.cost is not None:
+        if online.sf is not None and online.cost_logits is not None:
             assert self.lam1 is not None and self.lam2 is not None
-            assert self.sf_slow is not None and self.cost_slow is not None
-            m_all = self.sf(feat, sk)
+            assert slow.sf is not None and slow.cost_logits is not None
+            m_all = online.sf
             ret_m = lambda_return(
                 (1.0 - c.discount) * pred["phi"], grad_or_not(m_all), c.discount, c.return_lambda
             )
             dist = mahalanobis(ret_m - skill, whiten)
-            c_logits = self.cost.logits(feat, sk)
+            c_logits = online.cost_logits
             c_all = two_hot_mean(c_logits, bins)
             ret_c = lambda_return(pred["cost"], grad_or_not(c_all), c.gamma_cost, c.return_lambda)
             self.retnorm_c.update(ret_c)
             scale_c = self.retnorm_c.scale()
-            logit1 = self.lam1.logit(fd, skd)
-            logit2 = self.lam2.logit(fd, skd)
+            logit1 = self.lam1.logit(xd)
+            logit2 = self.lam2.logit(xd)
             lam1, lam2 = torch.sigmoid(logit1).detach(), torch.sigmoid(logit2).detach()
             objective = actor_objective(objective, dist, delta, ret_c / scale_c, lam1, lam2)
             if reinforce:
@@ -416,9 +404,7 @@ class Learner:
                 baseline = actor_objective(
                     baseline, base_dist, delta, c_all[:-1].detach() / scale_c, lam1, lam2
                 )
-            with torch.no_grad():
-                slow_m = self.sf_slow(fd, skd)
-                slow_c = self.cost_slow(fd, skd)
+            slow_m, slow_c = slow.sf, two_hot_mean(slow.cost_logits, bins)
             # squared errors in the whitened metric of δ: invariant to the features' scale
             sf_loss = whitened_sq(m_all[:-1] - ret_m.detach(), whiten) + (
                 c.slow_critic_reg * whitened_sq(m_all[:-1] - slow_m, whiten)
@@ -481,17 +467,13 @@ class Learner:
     def _critic_step(self, loss: torch.Tensor) -> None:
         """V, ψ, C step (gradients to their own weights only); the slow copies follow by EMA."""
         c = self.config
-        cparams = [p for m in self.critics for p in m.parameters()]
+        cparams = self.critics.online_parameters()
         grads = torch.autograd.grad(loss, cparams)
         for p, g in zip(cparams, grads, strict=True):
             p.grad = g
         _clip_step(self.critic_opt, cparams, c.ac_clip)
         self.critic_opt.zero_grad(set_to_none=True)
-        _ema(self.value_slow, self.value, c.slow_critic_fraction)
-        if self.sf_slow is not None and self.sf is not None:
-            _ema(self.sf_slow, self.sf, c.slow_critic_fraction)
-        if self.cost_slow is not None and self.cost is not None:
-            _ema(self.cost_slow, self.cost, c.slow_critic_fraction)
+        self.critics.update_slow(c.slow_critic_fraction)
 
     def _multiplier_step(self, loss: torch.Tensor | None) -> None:
         """λ1, λ2 step (their inputs are detached: the graph holds only their own weights)."""
@@ -548,18 +530,20 @@ class Learner:
         if self.lam1 is None or self.lam2 is None:
             raise ValueError("daydreamer has no multipliers")
         s = torch.as_tensor(np.asarray(skill, np.float32), device=self.device)
-        s = s.expand(*feat.shape[:-1], self.skill_dim)
-        return self.lam1(feat, s).cpu().numpy(), self.lam2(feat, s).cpu().numpy()
+        x = joint_input(feat, s.expand(*feat.shape[:-1], self.skill_dim))
+        return self.lam1(x).cpu().numpy(), self.lam2(x).cpu().numpy()
 
     @torch.no_grad()
     def critic_values(self, feat: torch.Tensor, skill: np.ndarray) -> dict[str, np.ndarray]:
         """V (...), m = (1 − γ)ψ (..., D) and C (...) of the online critics at (feat, skill)."""
         s = torch.as_tensor(np.asarray(skill, np.float32), device=self.device)
         s = s.expand(*feat.shape[:-1], self.skill_dim)
-        out = {"value": self.value(feat, s).cpu().numpy()}
-        if self.sf is not None and self.cost is not None:
-            out["sf"] = self.sf(feat, s).cpu().numpy()
-            out["cost"] = self.cost(feat, s).cpu().numpy()
+        pred = self.critics.online(joint_input(feat, s), s)
+        bins = self.wm.bins
+        out = {"value": two_hot_mean(pred.value_logits, bins).cpu().numpy()}
+        if pred.sf is not None and pred.cost_logits is not None:
+            out["sf"] = pred.sf.cpu().numpy()
+            out["cost"] = two_hot_mean(pred.cost_logits, bins).cpu().numpy()
         return out
 
     @torch.no_grad()
@@ -588,12 +572,7 @@ class Learner:
         mods: dict[str, nn.Module | None] = {
             "wm": self.wm,
             "actor": self.actor,
-            "value": self.value,
-            "value_slow": self.value_slow,
-            "sf": self.sf,
-            "sf_slow": self.sf_slow,
-            "cost": self.cost,
-            "cost_slow": self.cost_slow,
+            **self.critics.members(),
             "lam1": self.lam1,
             "lam2": self.lam2,
             "vae": self.vae,

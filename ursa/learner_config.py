@@ -15,6 +15,7 @@ from typing import Literal
 
 Mode = Literal["ursa", "ursa-supervised", "daydreamer"]
 ActorGrad = Literal["dynamics", "reinforce"]
+ComputeDtype = Literal["float32", "bfloat16", "auto"]
 LearnerPresetName = Literal["tiny", "point", "small", "paper"]
 
 
@@ -28,6 +29,12 @@ class LearnerConfig:
     no successor features, no multipliers, no safety critic)."""
     device: str = "cpu"
     """Torch device of the learner (``cpu``, ``cuda``, ``cuda:1``...)."""
+    compute_dtype: ComputeDtype = "float32"
+    """Precision of the networks' layers during an update: ``float32``; ``bfloat16`` (autocast:
+    weights, optimiser states, losses and returns stay float32); ``auto``: bfloat16 where the
+    device multiplies it natively (CUDA with bf16, CPUs with AMX-BF16), float32 elsewhere. The
+    ``small`` and ``paper`` presets use ``auto``; at ``tiny`` sizes bf16 is slower (the layers
+    are too small for the matrix units to pay for the casts). docs/learner.md."""
     seed: int = 0
     """Seed of the learner's torch and numpy generators (and of the initial weights)."""
 
@@ -157,6 +164,8 @@ class LearnerConfig:
             raise ValueError("discounts must lie in (0, 1)")
         if self.actor_grad not in ("dynamics", "reinforce"):
             raise ValueError(f"unknown actor_grad {self.actor_grad!r}")
+        if self.compute_dtype not in ("float32", "bfloat16", "auto"):
+            raise ValueError(f"unknown compute_dtype {self.compute_dtype!r}")
         if not 0.0 < self.delta_scale <= 1.0:
             raise ValueError("delta_scale must lie in (0, 1]")
 
@@ -224,6 +233,7 @@ class LearnerConfig:
             seq_len=32,
             imag_starts=0,
             lagrange_units=64,
+            compute_dtype="auto",
         )
         return dataclasses.replace(base, **overrides)  # type: ignore[arg-type]
 
@@ -242,6 +252,7 @@ class LearnerConfig:
             seq_len=64,
             imag_starts=0,
             lagrange_units=64,
+            compute_dtype="auto",
             vae_units=256,
         )
         return dataclasses.replace(base, **overrides)  # type: ignore[arg-type]

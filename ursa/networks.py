@@ -1,9 +1,76 @@
-"""Building blocks of the learner's networks: LayerNorm-SiLU MLPs and a LayerNorm GRU cell."""
+"""Building blocks of the learner's networks: LayerNorm-SiLU MLPs and a LayerNorm GRU cell,
+and the precision their matrix products run in (:func:`compute_dtype`)."""
 
 from __future__ import annotations
 
+import contextlib
+import contextvars
+from collections.abc import Iterator
+from pathlib import Path
+
 import torch
 from torch import nn
+
+_COMPUTE: contextvars.ContextVar[torch.dtype | None] = contextvars.ContextVar(
+    "ursa_compute_dtype", default=None
+)
+
+
+@contextlib.contextmanager
+def compute_dtype(dtype: torch.dtype | None) -> Iterator[None]:
+    """Inside, the networks of this module run their layers in ``dtype`` (torch autocast, e.g.
+    bfloat16) and return float32; None: float32 throughout. Weights, gradients' accumulation in
+    the optimisers, losses and returns stay float32 whatever the setting (DreamerV3's
+    ``compute_dtype``)."""
+    token = _COMPUTE.set(dtype)
+    try:
+        yield
+    finally:
+        _COMPUTE.reset(token)
+
+
+def _autocast(x: torch.Tensor) -> contextlib.AbstractContextManager[object]:
+    dtype = _COMPUTE.get()
+    if dtype is None:
+        return contextlib.nullcontext()
+    return torch.autocast(x.device.type, dtype=dtype)
+
+
+def cast_input(x: torch.Tensor) -> torch.Tensor:
+    """``x`` in the compute dtype (unchanged under float32): an input that several networks read
+    is cast once instead of once per network."""
+    dtype = _COMPUTE.get()
+    return x if dtype is None else x.to(dtype)
+
+
+def cpu_has_amx_bf16(cpuinfo: str | None = None) -> bool:
+    """Whether this CPU multiplies bfloat16 matrices in hardware (Intel AMX-BF16), from the
+    flags of /proc/cpuinfo (or the text given)."""
+    if cpuinfo is None:
+        try:
+            cpuinfo = Path("/proc/cpuinfo").read_text()
+        except OSError:
+            return False
+    return any(
+        line.startswith("flags") and "amx_bf16" in line.split() for line in cpuinfo.splitlines()
+    )
+
+
+def resolve_compute_dtype(name: str, device: torch.device) -> torch.dtype | None:
+    """The autocast dtype of a ``compute_dtype`` setting on ``device`` (None: float32).
+
+    ``auto`` picks bfloat16 where it was measured faster (docs/learner.md): CUDA devices with
+    bf16 support and CPUs with AMX-BF16; float32 elsewhere (a CPU without bf16 matrix units
+    emulates it, slower than float32)."""
+    if name == "float32":
+        return None
+    if name == "bfloat16":
+        return torch.bfloat16
+    if name != "auto":
+        raise ValueError(f"unknown compute_dtype {name!r}")
+    if device.type == "cuda":
+        return torch.bfloat16 if torch.cuda.is_bf16_supported() else None
+    return torch.bfloat16 if device.type == "cpu" and cpu_has_amx_bf16() else None
 
 
 class MLP(nn.Module):
@@ -29,8 +96,9 @@ class MLP(nn.Module):
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         """(..., inp) -> (..., out)."""
-        x = self.trunk(x)
-        return self.head(x) if self.head is not None else x
+        with _autocast(x):
+            x = self.trunk(x)
+            return (self.head(x) if self.head is not None else x).float()
 
 
 class GRUCell(nn.Module):
@@ -44,7 +112,8 @@ class GRUCell(nn.Module):
 
     def forward(self, x: torch.Tensor, h: torch.Tensor) -> torch.Tensor:
         """x (B, inp), h (B, size) -> h' (B, size)."""
-        parts = self.norm(self.linear(torch.cat([x, h], -1)))
+        with _autocast(x):
+            parts = self.norm(self.linear(torch.cat([x, h], -1))).float()
         reset, cand, update = parts.split(self.size, -1)
         reset = torch.sigmoid(reset)
         cand = torch.tanh(reset * cand)

@@ -33,7 +33,7 @@ from ursa.distributions import (
     unimix_probs,
 )
 from ursa.learner_config import LearnerConfig
-from ursa.networks import MLP, GRUCell
+from ursa.networks import MLP, GRUCell, cast_input
 
 
 class RSSM(nn.Module):
@@ -248,11 +248,12 @@ class WorldModel(nn.Module):
 
     def predict(self, feat: torch.Tensor) -> dict[str, torch.Tensor]:
         """Head means at model states (..., F): reward (...), cost (...), phi (..., D)."""
-        out = {"reward": two_hot_mean(self.reward(feat), self.bins)}
+        x = cast_input(feat)  # one cast for the three heads
+        out = {"reward": two_hot_mean(self.reward(x), self.bins)}
         if self.cost is not None:
-            out["cost"] = two_hot_mean(self.cost(feat), self.bins)
+            out["cost"] = two_hot_mean(self.cost(x), self.bins)
         if self.phi is not None:
-            out["phi"] = symexp(self.phi(feat))
+            out["phi"] = symexp(self.phi(x))
         return out
 
     def imagine(
