@@ -20,7 +20,7 @@ from typing import TypeVar
 import torch
 from torch import nn
 
-from ursa.distributions import tanh_normal_logp, tanh_normal_rsample, two_hot_mean
+from ursa.distributions import tanh_normal_logp, tanh_normal_rsample
 from ursa.learner_config import LearnerConfig
 from ursa.networks import MLP, cast_input
 
@@ -165,13 +165,10 @@ class TwoHotCritic(nn.Module):
         )
         self.register_buffer("bins", bins.clone(), persistent=False)
 
-    def logits(self, x: torch.Tensor) -> torch.Tensor:
-        """Joint input (..., F + D) (:func:`joint_input`) -> logits (..., K)."""
-        return self.mlp(x)
-
     def forward(self, x: torch.Tensor) -> torch.Tensor:
-        """Expected value (...)."""
-        return two_hot_mean(self.logits(x), self.bins)
+        """Joint input (..., F + D) (:func:`joint_input`) -> logits (..., K); the value is
+        ``two_hot_mean(logits, bins)``."""
+        return self.mlp(x)
 
 
 class SFCritic(nn.Module):
@@ -248,58 +245,48 @@ class Critics(nn.Module):
         self.sf_slow = frozen_copy(self.sf) if self.sf is not None else None
         self.cost_slow = frozen_copy(self.cost) if self.cost is not None else None
 
-    def _predict(
-        self,
-        value: TwoHotCritic,
-        sf: SFCritic | None,
-        cost: TwoHotCritic | None,
-        x: torch.Tensor,
-        skill: torch.Tensor,
-    ) -> CriticOutputs:
+    def _members(self, slow: bool) -> tuple[TwoHotCritic, SFCritic | None, TwoHotCritic | None]:
+        if slow:
+            return self.value_slow, self.sf_slow, self.cost_slow
+        return self.value, self.sf, self.cost
+
+    def _predict(self, slow: bool, x: torch.Tensor, skill: torch.Tensor) -> CriticOutputs:
+        value, sf, cost = self._members(slow)
         return CriticOutputs(
-            value.logits(x),
+            value(x),
             sf(x, skill) if sf is not None else None,
-            cost.logits(x) if cost is not None else None,
+            cost(x) if cost is not None else None,
         )
 
     def online(self, x: torch.Tensor, skill: torch.Tensor) -> CriticOutputs:
         """The online critics at joint inputs x (..., F + D) for skills (..., D)."""
-        return self._predict(self.value, self.sf, self.cost, x, skill)
+        return self._predict(False, x, skill)
 
     @torch.no_grad()
     def slow(self, x: torch.Tensor, skill: torch.Tensor) -> CriticOutputs:
         """The slow copies at joint inputs x (..., F + D) for skills (..., D)."""
-        return self._predict(self.value_slow, self.sf_slow, self.cost_slow, x, skill)
+        return self._predict(True, x, skill)
 
     def online_parameters(self) -> list[nn.Parameter]:
         """The parameters the critics' optimiser trains (the slow copies follow by EMA)."""
-        online = (self.value, self.sf, self.cost)
-        return [p for m in online if m is not None for p in m.parameters()]
+        return [p for m in self._members(False) if m is not None for p in m.parameters()]
 
     @torch.no_grad()
     def update_slow(self, rate: float) -> None:
         """Move every slow copy ``rate`` of the way to its online critic."""
-        pairs = (
-            (self.value_slow, self.value),
-            (self.sf_slow, self.sf),
-            (self.cost_slow, self.cost),
-        )
-        for slow, fast in pairs:
+        for slow, fast in zip(self._members(True), self._members(False), strict=True):
             if slow is not None and fast is not None:
                 for ps, pf in zip(slow.parameters(), fast.parameters(), strict=True):
                     ps.lerp_(pf, rate)
 
     def members(self) -> dict[str, nn.Module]:
         """Every member by its checkpoint name (``value``, ``value_slow``, ``sf``...)."""
-        mods = {
-            "value": self.value,
-            "value_slow": self.value_slow,
-            "sf": self.sf,
-            "sf_slow": self.sf_slow,
-            "cost": self.cost,
-            "cost_slow": self.cost_slow,
-        }
-        return {k: m for k, m in mods.items() if m is not None}
+        names = ("value", "sf", "cost")
+        out: dict[str, nn.Module] = {}
+        for name, fast, slow in zip(names, self._members(False), self._members(True), strict=True):
+            if fast is not None and slow is not None:
+                out[name], out[f"{name}_slow"] = fast, slow
+        return out
 
 
 def frozen_copy(net: _M) -> _M:
