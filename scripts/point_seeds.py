@@ -48,7 +48,7 @@ def _one(job: tuple[str, str, int, dict[str, str]]) -> dict[str, Any]:
     secs = time.perf_counter() - t0
     if mode == "daydreamer":
         return {"mode": mode, "seed": seed, "seconds": secs, "dir": str(run_dir)}
-    a = assess(run_dir, f"seed {seed}")
+    a = assess(run_dir, f"seed {seed}", recipe=not learner)
     out = {
         "mode": mode,
         "seed": seed,
@@ -62,6 +62,17 @@ def _one(job: tuple[str, str, int, dict[str, str]]) -> dict[str, Any]:
         "skills": np.asarray(a["skills"]).tolist(),
     }
     return out
+
+
+def _cpu_model() -> str:
+    """The processor's model name (``/proc/cpuinfo``), else what ``platform`` knows."""
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                return line.split(":", 1)[1].strip()
+    except OSError:
+        pass
+    return platform.processor() or platform.machine()
 
 
 def main() -> None:
@@ -78,19 +89,31 @@ def main() -> None:
     ap.add_argument(
         "--actor-grad", default=None, help="the learner's actor_grad instead of the recipe's"
     )
+    ap.add_argument(
+        "--set",
+        nargs="*",
+        default=[],
+        metavar="FIELD=VALUE",
+        help="other learner fields instead of the recipe's (a variant to measure)",
+    )
+    ap.add_argument("--no-daydreamer", action="store_true", help="skip the DayDreamer run")
     a = ap.parse_args()
-    learner = {
+    learner: dict[str, Any] = {
         k: v
         for k, v in (("compute_dtype", a.compute_dtype), ("actor_grad", a.actor_grad))
         if v is not None
     }
+    for item in a.set:
+        key, _, value = item.partition("=")
+        learner[key] = json.loads(value) if value[:1] in '-0123456789.tf[{"' else value
     jobs = [(str(a.runs), "ursa-supervised", s, learner) for s in a.seeds]
-    jobs.append((str(a.runs), "daydreamer", a.seeds[0], learner))
+    if not a.no_daydreamer:
+        jobs.append((str(a.runs), "daydreamer", a.seeds[0], learner))
     ctx = multiprocessing.get_context("spawn")
     with ProcessPoolExecutor(a.workers, mp_context=ctx) as ex:
         rows = list(ex.map(_one, jobs))
     ursa = [r for r in rows if r["mode"] != "daydreamer"]
-    dd = next(r for r in rows if r["mode"] == "daydreamer")
+    dd = next((r for r in rows if r["mode"] == "daydreamer"), None)
 
     import numpy as np
 
@@ -99,9 +122,9 @@ def main() -> None:
     from ursa.eval.loading import load_run
     from ursa.serial import evaluate_skills
 
-    ddr = load_run(dd["dir"])
     dd_within = []
-    for r in ursa:  # DayDreamer's policy on every seed's evaluation skills
+    for r in ursa if dd is not None else []:
+        ddr = load_run(dd["dir"])  # DayDreamer's policy on every seed's evaluation skills
         rep = load_run(r["dir"]).require_repertoire()
         res = evaluate_skills(
             ddr.require_policy(), PointEnv(seed=11), np.asarray(r["skills"]), EVAL_T, rep.cov
@@ -111,8 +134,7 @@ def main() -> None:
     summary = {
         "seeds": a.seeds,
         "learner_overrides": learner,
-        "machine": f"{platform.processor() or platform.machine()}, {multiprocessing.cpu_count()} "
-        "cores",
+        "machine": f"{_cpu_model()}, {multiprocessing.cpu_count()} cores",
         "within_delta": within.tolist(),
         "within_delta_median": float(np.median(within)),
         "within_delta_worst": float(within.min()),

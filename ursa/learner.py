@@ -262,7 +262,7 @@ class Learner:
         metrics: dict[str, torch.Tensor | float] = {}
         with compute_dtype(self.compute):
             with self._phase("wm", times):
-                h, z = self._world_model_step(self._tensors(batch), metrics)
+                h, z = self._world_model_step(self._tensors(batch), metrics, skills)
             with self._phase("imagination", times):
                 ctx = self._skill_context(h.shape[0], skills)
                 losses = self._imagination_losses(h, z, ctx, metrics)
@@ -285,12 +285,20 @@ class Learner:
         return out
 
     def _world_model_step(
-        self, data: dict[str, torch.Tensor], metrics: dict[str, torch.Tensor | float]
+        self,
+        data: dict[str, torch.Tensor],
+        metrics: dict[str, torch.Tensor | float],
+        skills: SkillSnapshot | None = None,
     ) -> tuple[torch.Tensor, torch.Tensor]:
-        """World-model loss and step on the batch; returns the imagination's start states
+        """World-model loss and step on the batch (the φ head's error in the metric of the
+        snapshot's Σ when ``phi_metric`` is ``skill``); returns the imagination's start states
         h (N, deter), z (N, S·K): all B·T posterior states, or ``imag_starts`` of them."""
         c = self.config
-        wm_loss, wm_metrics, post = self.wm.loss(data, self._phi_targets(data), self.gen)
+        whiten = None
+        if c.phi_metric == "skill" and skills is not None and self.skill_dim:
+            a = kde.whitening_matrix(kde.regularize_cov(skills.cov))
+            whiten = torch.as_tensor(a, dtype=torch.float32, device=self.device)
+        wm_loss, wm_metrics, post = self.wm.loss(data, self._phi_targets(data), self.gen, whiten)
         self.model_opt.zero_grad(set_to_none=True)
         wm_loss.backward()
         metrics["wm/grad_norm"] = _clip_step(

@@ -16,6 +16,7 @@ from typing import Literal
 Mode = Literal["ursa", "ursa-supervised", "daydreamer"]
 ActorGrad = Literal["dynamics", "reinforce"]
 ComputeDtype = Literal["float32", "bfloat16", "auto"]
+PhiMetric = Literal["skill", "symlog"]
 LearnerPresetName = Literal["tiny", "point", "small", "paper"]
 
 
@@ -63,6 +64,13 @@ class LearnerConfig:
     """Scale of the representation loss KL(post ‖ sg(prior))."""
     free_nats: float = 1.0
     """Each KL term is clipped below at this value (per time step), so it has no gradient there."""
+    phi_metric: PhiMetric = "symlog"
+    """Loss of the world model's φ head: ``symlog``, the squared error of symlog(φ)
+    (DreamerV3's vector-decoder loss), whose scale is the features' own; ``skill``, the squared
+    error ‖φ̂ − φ‖²_Σ in the metric of δ (Σ the repertoire's KDE covariance, as the SF critic's
+    loss), which trains the model to place φ to a fraction of δ. On the point recipe ``skill``
+    executed more skills within δ but let the model forget the unsafe disc, which only the
+    prefill visits (docs/learner.md), so ``symlog`` stays the default."""
 
     # --- batches -------------------------------------------------------------------------------
     batch_size: int = 16
@@ -166,6 +174,8 @@ class LearnerConfig:
             raise ValueError(f"unknown actor_grad {self.actor_grad!r}")
         if self.compute_dtype not in ("float32", "bfloat16", "auto"):
             raise ValueError(f"unknown compute_dtype {self.compute_dtype!r}")
+        if self.phi_metric not in ("skill", "symlog"):
+            raise ValueError(f"unknown phi_metric {self.phi_metric!r}")
         if not 0.0 < self.delta_scale <= 1.0:
             raise ValueError("delta_scale must lie in (0, 1]")
 

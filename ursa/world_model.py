@@ -212,12 +212,15 @@ class WorldModel(nn.Module):
         data: dict[str, torch.Tensor],
         phi: torch.Tensor | None,
         generator: torch.Generator | None,
+        phi_whiten: torch.Tensor | None = None,
     ) -> tuple[torch.Tensor, dict[str, torch.Tensor], dict[str, torch.Tensor]]:
         """World-model loss on a batch.
 
         data: obs (B, T, O), action (B, T, A), reward (B, T), cost (B, T), is_first (B, T);
-        phi: the feature targets (B, T, D) or None. Returns (loss, metrics (detached scalars),
-        posterior states {h, z} (B, T, ·)).
+        phi: the feature targets (B, T, D) or None. ``phi_whiten`` A (D, D) with A Σ Aᵀ = I:
+        the φ head's error is measured as ‖symexp(head) − φ‖²_Σ (the metric of δ) instead of
+        the squared error of symlog(φ). Returns (loss, metrics (detached scalars), posterior
+        states {h, z} (B, T, ·)).
         """
         c = self.config
         embed = self.encoder(data["obs"])
@@ -238,7 +241,10 @@ class WorldModel(nn.Module):
             loss = loss + cost
             metrics["wm/cost"] = cost.mean()
         if self.phi is not None and phi is not None:
-            phil = (self.phi(feat) - symlog(phi)).pow(2).sum(-1)
+            if phi_whiten is None:
+                phil = (self.phi(feat) - symlog(phi)).pow(2).sum(-1)
+            else:
+                phil = ((symexp(self.phi(feat)) - phi) @ phi_whiten.T).pow(2).sum(-1)
             loss = loss + phil
             metrics["wm/phi"] = phil.mean()
         loss = loss.mean()

@@ -278,6 +278,39 @@ def test_checkpoint_rejects_other_dims(tmp_path: Path) -> None:
         Learner(MICRO, 7, 2, 4).load_checkpoint(tmp_path / "c.pt")
 
 
+def test_phi_head_error_is_measured_in_the_metric_of_delta() -> None:
+    """``phi_metric="skill"``: the world model's φ loss is ‖symexp(head) − φ‖²_Σ with the
+    snapshot's Σ (hand-computed from the head's output here), so a repertoire spread 10×
+    narrower weighs the same error 100× more; ``symlog`` keeps the squared symlog error,
+    whatever Σ."""
+    replay = _random_replay()
+    batch = replay.sample(MICRO.batch_size, MICRO.seq_len, np.random.default_rng(0))
+    wide = _snapshot(np.random.default_rng(0).uniform(-1, 1, size=(300, 2)))
+    narrow = dataclasses.replace(wide, cov=wide.cov / 100.0)
+    cfg = dataclasses.replace(MICRO, mode="ursa-supervised", phi_metric="skill")
+
+    def phi_loss(config: LearnerConfig, snap: SkillSnapshot) -> float:
+        return Learner(config, 6, 2, 2).train_step(batch, snap)["wm/phi"]
+
+    # by hand, with the same initial weights (seeded) and generator
+    learner = Learner(cfg, 6, 2, 2)
+    data = learner._tensors(batch)
+    emb = learner.wm.encoder(data["obs"])
+    post = learner.wm.rssm.observe(emb, data["action"], data["is_first"], learner.gen)
+    with torch.no_grad():
+        pred = learner.wm.predict(learner.wm.feat(post["h"], post["z"]))["phi"].numpy()
+    a = kde.whitening_matrix(kde.regularize_cov(wide.cov))
+    want = (((pred - batch["features"]) @ a.T) ** 2).sum(-1).mean()
+    assert phi_loss(cfg, wide) == pytest.approx(want, rel=1e-4)
+    assert phi_loss(cfg, narrow) == pytest.approx(100.0 * want, rel=1e-3)
+    sym = dataclasses.replace(cfg, phi_metric="symlog")
+    assert LearnerConfig().phi_metric == "symlog"  # the default: the learning recipes' loss
+    assert phi_loss(sym, narrow) == pytest.approx(phi_loss(sym, wide), rel=1e-6)
+    assert phi_loss(sym, wide) < want / 10.0  # the features' own scale: a small term
+    with pytest.raises(ValueError, match="phi_metric"):
+        dataclasses.replace(MICRO, phi_metric="l1")  # type: ignore[arg-type]
+
+
 def test_presets_change_sizes_only() -> None:
     tiny, small, paper = (learner_preset(n) for n in ("tiny", "small", "paper"))  # type: ignore[arg-type]
     sizes = {

@@ -20,6 +20,7 @@ from ursa import kde
 from ursa.envs.point import PointEnv
 from ursa.eval.loading import load_run, read_checkpoint
 from ursa.learner import Learner
+from ursa.learner_config import LearnerConfig
 from ursa.replay import Replay
 from ursa.serial import EvalResult, evaluate_skills
 
@@ -60,26 +61,30 @@ def _prediction_loss(m: dict[str, float]) -> float:
     return m["wm/decoder"] + m["wm/reward"] + m["wm/cost"] + m["wm/phi"]
 
 
-def _learner(run_dir: Path | None, seed: int = 0) -> Learner:
-    """The run's learner from its checkpoint (``None``: the same learner before training)."""
-    lc = point_config("ursa-supervised", seed).learner
+def _learner(run_dir: Path | None, seed: int = 0, lc: LearnerConfig | None = None) -> Learner:
+    """The run's learner from its checkpoint (``None``: the same learner before training);
+    ``lc``: its config (default: the point recipe's for ``seed``)."""
+    lc = lc or point_config("ursa-supervised", seed).learner
     learner = Learner(lc, PointEnv.obs_dim, PointEnv.act_dim, 2)
     if run_dir is not None:
         learner.load_state_dict(read_checkpoint(run_dir / "checkpoints" / "learner.pt"))
     return learner
 
 
-def assess(run_dir: Path, label: str) -> dict[str, Any]:
+def assess(run_dir: Path, label: str, recipe: bool = True) -> dict[str, Any]:
     """Evaluate a trained point-env URSA run directory the way these tests judge it: held-out
     prediction loss before and after, and K KDE skills executed in the real env by the trained
-    policy and by random actions."""
+    policy and by random actions. ``recipe``: the run must have been trained with the point
+    recipe (False: a variant, as ``scripts/point_seeds.py --set`` trains)."""
     torch.set_num_threads(1)
     run = load_run(run_dir)
     seed = run.config.learner.seed
-    assert run.config.learner == point_config("ursa-supervised", seed).learner
-    learner = _learner(run_dir, seed)
+    lc = run.config.learner
+    if recipe:
+        assert lc == point_config("ursa-supervised", seed).learner, lc
+    learner = _learner(run_dir, seed, lc)
     heldout = _heldout()
-    initial = _learner(None, seed).world_model_loss(heldout)
+    initial = _learner(None, seed, lc).world_model_loss(heldout)
     final = learner.world_model_loss(heldout)
     rep = run.require_repertoire()
     skills = rep.sample(EVAL_SKILLS, np.random.default_rng(1))
