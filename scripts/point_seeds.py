@@ -123,8 +123,8 @@ def main() -> None:
     from ursa.serial import evaluate_skills
 
     dd_within = []
-    for r in ursa if dd is not None else []:
-        ddr = load_run(dd["dir"])  # DayDreamer's policy on every seed's evaluation skills
+    ddr = load_run(dd["dir"]) if dd is not None else None
+    for r in ursa if ddr is not None else []:  # DayDreamer's policy on every seed's skills
         rep = load_run(r["dir"]).require_repertoire()
         res = evaluate_skills(
             ddr.require_policy(), PointEnv(seed=11), np.asarray(r["skills"]), EVAL_T, rep.cov

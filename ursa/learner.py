@@ -296,8 +296,7 @@ class Learner:
         c = self.config
         whiten = None
         if c.phi_metric == "skill" and skills is not None and self.skill_dim:
-            a = kde.whitening_matrix(kde.regularize_cov(skills.cov))
-            whiten = torch.as_tensor(a, dtype=torch.float32, device=self.device)
+            whiten = self._whitening(skills)
         wm_loss, wm_metrics, post = self.wm.loss(data, self._phi_targets(data), self.gen, whiten)
         self.model_opt.zero_grad(set_to_none=True)
         wm_loss.backward()
@@ -327,12 +326,16 @@ class Learner:
             zs = kde.kde_sample_in_box(
                 skills.skills, skills.cov, n, self.np_rng, *skills.box, support=skills.support
             )
-        whiten = kde.whitening_matrix(kde.regularize_cov(skills.cov))
         return _SkillContext(
             torch.as_tensor(zs, dtype=torch.float32, device=self.device),
-            torch.as_tensor(whiten, dtype=torch.float32, device=self.device),
+            self._whitening(skills),
             c.delta_scale * float(skills.delta),
         )
+
+    def _whitening(self, skills: SkillSnapshot) -> torch.Tensor:
+        """A (D, D) with A Σ Aᵀ = I for the snapshot's Σ: the metric of δ."""
+        a = kde.whitening_matrix(kde.regularize_cov(skills.cov))
+        return torch.as_tensor(a, dtype=torch.float32, device=self.device)
 
     def _imagination_losses(
         self,

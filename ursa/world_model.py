@@ -22,6 +22,7 @@ from dataclasses import dataclass
 import torch
 from torch import nn
 
+from ursa.agent import whitened_sq
 from ursa.distributions import (
     kl_balance,
     sample_onehot_st,
@@ -244,7 +245,7 @@ class WorldModel(nn.Module):
             if phi_whiten is None:
                 phil = (self.phi(feat) - symlog(phi)).pow(2).sum(-1)
             else:
-                phil = ((symexp(self.phi(feat)) - phi) @ phi_whiten.T).pow(2).sum(-1)
+                phil = whitened_sq(symexp(self.phi(feat)) - phi, phi_whiten)
             loss = loss + phil
             metrics["wm/phi"] = phil.mean()
         loss = loss.mean()

@@ -61,10 +61,9 @@ def _prediction_loss(m: dict[str, float]) -> float:
     return m["wm/decoder"] + m["wm/reward"] + m["wm/cost"] + m["wm/phi"]
 
 
-def _learner(run_dir: Path | None, seed: int = 0, lc: LearnerConfig | None = None) -> Learner:
-    """The run's learner from its checkpoint (``None``: the same learner before training);
-    ``lc``: its config (default: the point recipe's for ``seed``)."""
-    lc = lc or point_config("ursa-supervised", seed).learner
+def _learner(run_dir: Path | None, lc: LearnerConfig) -> Learner:
+    """The learner of config ``lc`` from the run's checkpoint (``None``: the same learner before
+    training)."""
     learner = Learner(lc, PointEnv.obs_dim, PointEnv.act_dim, 2)
     if run_dir is not None:
         learner.load_state_dict(read_checkpoint(run_dir / "checkpoints" / "learner.pt"))
@@ -82,9 +81,9 @@ def assess(run_dir: Path, label: str, recipe: bool = True) -> dict[str, Any]:
     lc = run.config.learner
     if recipe:
         assert lc == point_config("ursa-supervised", seed).learner, lc
-    learner = _learner(run_dir, seed, lc)
+    learner = _learner(run_dir, lc)
     heldout = _heldout()
-    initial = _learner(None, seed, lc).world_model_loss(heldout)
+    initial = _learner(None, lc).world_model_loss(heldout)
     final = learner.world_model_loss(heldout)
     rep = run.require_repertoire()
     skills = rep.sample(EVAL_SKILLS, np.random.default_rng(1))
