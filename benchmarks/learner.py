@@ -2,8 +2,8 @@
 
 Claims, each measured in the same run on the same device and thread count:
 - the preset's update (``actor_grad="dynamics"``, ``compute_dtype="auto"``: bfloat16 layers on
-  CPUs with AMX-BF16 and on GPUs) against the same update in float32, 512 imagination starts ×
-  15 steps at ``small`` sizes (``bf16_ratio``);
+  CPUs with AMX-BF16 or AVX512-BF16 and on GPUs) against the same update in float32, 512
+  imagination starts × 15 steps at ``small`` sizes (``bf16_ratio``);
 - the REINFORCE actor (``actor_grad="reinforce"``) does the same work per update as
   backpropagation through the dynamics in a fraction of the time (``dynamics_ratio``);
 - one URSA update (world model + imagination with V, ψ, C, λ1, λ2 and the actor + VAE) costs a

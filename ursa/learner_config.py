@@ -33,9 +33,10 @@ class LearnerConfig:
     compute_dtype: ComputeDtype = "float32"
     """Precision of the networks' layers during an update: ``float32``; ``bfloat16`` (autocast:
     weights, optimiser states, losses and returns stay float32); ``auto``: bfloat16 where the
-    device multiplies it natively (CUDA with bf16, CPUs with AMX-BF16), float32 elsewhere. The
-    ``small`` and ``paper`` presets use ``auto``; at ``tiny`` sizes bf16 is slower (the layers
-    are too small for the matrix units to pay for the casts). docs/learner.md."""
+    device multiplies it natively (CUDA with bf16, CPUs with AMX-BF16 or AVX512-BF16), float32
+    elsewhere. The ``small`` and ``paper`` presets use ``auto``; at ``tiny`` sizes bf16 is
+    slower (the layers are too small for the matrix units to pay for the casts).
+    docs/learner.md."""
     seed: int = 0
     """Seed of the learner's torch and numpy generators (and of the initial weights)."""
 

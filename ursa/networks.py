@@ -43,8 +43,13 @@ def cast_input(x: torch.Tensor) -> torch.Tensor:
     return x if dtype is None else x.to(dtype)
 
 
-def cpu_has_amx_bf16(cpuinfo: str | None = None) -> bool:
-    """Whether this CPU multiplies bfloat16 matrices in hardware (Intel AMX-BF16), from the
+BF16_CPU_FLAGS = ("amx_bf16", "avx512_bf16")
+"""/proc/cpuinfo flags of bfloat16 dot products in hardware: Intel's AMX-BF16 tiles and the
+AVX512-BF16 instructions (Intel Cooper Lake and later, AMD Zen 4 and later)."""
+
+
+def cpu_has_bf16(cpuinfo: str | None = None) -> bool:
+    """Whether this CPU multiplies bfloat16 in hardware (AMX-BF16 or AVX512-BF16), from the
     flags of /proc/cpuinfo (or the text given)."""
     if cpuinfo is None:
         try:
@@ -52,7 +57,8 @@ def cpu_has_amx_bf16(cpuinfo: str | None = None) -> bool:
         except OSError:
             return False
     return any(
-        line.startswith("flags") and "amx_bf16" in line.split() for line in cpuinfo.splitlines()
+        line.startswith("flags") and not set(BF16_CPU_FLAGS).isdisjoint(line.split())
+        for line in cpuinfo.splitlines()
     )
 
 
@@ -60,8 +66,8 @@ def resolve_compute_dtype(name: str, device: torch.device) -> torch.dtype | None
     """The autocast dtype of a ``compute_dtype`` setting on ``device`` (None: float32).
 
     ``auto`` picks bfloat16 where it was measured faster (docs/learner.md): CUDA devices with
-    bf16 support and CPUs with AMX-BF16; float32 elsewhere (a CPU without bf16 matrix units
-    emulates it, slower than float32)."""
+    bf16 support and CPUs with AMX-BF16 or AVX512-BF16; float32 elsewhere (a CPU without bf16
+    instructions emulates it, slower than float32)."""
     if name == "float32":
         return None
     if name == "bfloat16":
@@ -70,7 +76,7 @@ def resolve_compute_dtype(name: str, device: torch.device) -> torch.dtype | None
         raise ValueError(f"unknown compute_dtype {name!r}")
     if device.type == "cuda":
         return torch.bfloat16 if torch.cuda.is_bf16_supported() else None
-    return torch.bfloat16 if device.type == "cpu" and cpu_has_amx_bf16() else None
+    return torch.bfloat16 if device.type == "cpu" and cpu_has_bf16() else None
 
 
 class MLP(nn.Module):

@@ -20,25 +20,27 @@ from ursa.networks import (
     GRUCell,
     cast_input,
     compute_dtype,
-    cpu_has_amx_bf16,
+    cpu_has_bf16,
     resolve_compute_dtype,
 )
 
 torch.set_num_threads(1)
 
-FLAGS_AMX = "processor\t: 0\nflags\t\t: fpu avx512f avx512_bf16 amx_bf16 amx_tile\n"
-FLAGS_NO_AMX = "processor\t: 0\nflags\t\t: fpu avx2 avx512f avx512_bf16 amx_bf16x\n"
+FLAGS_AMX = "processor\t: 0\nflags\t\t: fpu avx512f amx_bf16 amx_tile\n"
+FLAGS_AVX512_BF16 = "processor\t: 0\nflags\t\t: fpu avx2 avx512f avx512_bf16 avx512_vnni\n"
+FLAGS_NO_BF16 = "processor\t: 0\nflags\t\t: fpu avx2 avx512f avx512_bf16x amx_bf16x\n"
 
 
 def test_cpu_flags_and_auto() -> None:
-    assert cpu_has_amx_bf16(FLAGS_AMX)
-    # avx512_bf16 alone (no matrix unit) and a longer flag that contains the name do not count
-    assert not cpu_has_amx_bf16(FLAGS_NO_AMX)
-    assert not cpu_has_amx_bf16("model name\t: amx_bf16 in a name, not a flag\n")
+    assert cpu_has_bf16(FLAGS_AMX)
+    assert cpu_has_bf16(FLAGS_AVX512_BF16)  # AMD Zen 4: bf16 dot products without AMX
+    # AVX-512 without its bf16 instructions, and longer flags that contain the names, do not count
+    assert not cpu_has_bf16(FLAGS_NO_BF16)
+    assert not cpu_has_bf16("model name\t: amx_bf16 in a name, not a flag\n")
     cpu = torch.device("cpu")
     assert resolve_compute_dtype("float32", cpu) is None
     assert resolve_compute_dtype("bfloat16", cpu) is torch.bfloat16
-    expected = torch.bfloat16 if cpu_has_amx_bf16() else None
+    expected = torch.bfloat16 if cpu_has_bf16() else None
     assert resolve_compute_dtype("auto", cpu) is expected
     with pytest.raises(ValueError):
         resolve_compute_dtype("float16", cpu)
