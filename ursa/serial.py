@@ -9,7 +9,8 @@ replay ratio), and the policy receives the learner's weights every ``sync_every`
 a learned φ the repertoire re-encodes its inputs whenever the learner publishes an encoder.
 
 ``evaluate_skills`` runs a policy on a list of skills in the real env (reset-free: one skill
-after the other, T steps each) and reports what each achieved.
+after the other, T steps each) and reports what each achieved (the evaluation rollout of
+``ursa.eval.rollout``).
 """
 
 from __future__ import annotations
@@ -24,6 +25,7 @@ import numpy as np
 from ursa import scoring
 from ursa.bounds import Box
 from ursa.envs.base import ResetFreeEnv
+from ursa.eval.rollout import execute_skills
 from ursa.learner import Learner, SkillSnapshot
 from ursa.learner_config import LearnerConfig
 from ursa.policy import Policy, PolicyCarry
@@ -90,50 +92,36 @@ def evaluate_skills(
     metric_cov: np.ndarray,
     feature: str = "position",
     explore: bool = scoring.EXPLORE,
-    rng: np.random.Generator | None = None,
+    seed: int = 0,
     record: bool = False,
     settle: int | None = None,
 ) -> EvalResult:
     """Run each skill (K, D) for ``steps`` env steps in turn, without resets, and score it by
-    the rule of :mod:`ursa.scoring` (policy mode, settle period, distance in the metric of δ).
+    the rule of :mod:`ursa.scoring`: :func:`ursa.eval.rollout.execute_skills` (the one
+    evaluation rollout) with the distance of each achieved skill to its target.
 
-    ``policy`` None acts uniformly at random. The achieved skill is the mean of φ over the
-    steps after ``settle`` (default :func:`ursa.scoring.settle_steps`) (the policy's φ, i.e. its
-    VAE encoder in ``ursa`` mode, applied to ``info["features"][feature]``); distances use
-    Σ = ``metric_cov``, the metric of δ. ``explore`` True runs the stochastic policy π_z
-    instead of its mode. The violation rate counts every step. ``record`` keeps the
-    observations and actions (replay convention: the observation after each action).
+    ``policy`` None acts uniformly at random (φ = the provided feature ``feature``); otherwise
+    φ is the policy's (its VAE encoder in ``ursa`` mode) applied to
+    ``info["features"][feature]``; distances use Σ = ``metric_cov``, the metric of δ. ``record``
+    keeps the observations and actions (replay convention: the observation after each action).
     """
-    rng = rng or np.random.default_rng(0)
     skills = np.asarray(skills, np.float64)
-    settle = scoring.settle_steps(steps) if settle is None else settle
-    k = len(skills)
-    obs, _ = env.reset()
-    carry: PolicyCarry | None = policy.initial_carry() if policy is not None else None
-    achieved = np.zeros_like(skills)
-    returns = np.zeros(k)
-    viol = np.zeros(k)
-    all_obs = np.zeros((k, steps, env.obs_dim), np.float32) if record else None
-    all_act = np.zeros((k, steps, env.act_dim), np.float32) if record else None
-    for i, z in enumerate(skills):
-        inputs = []
-        for t in range(steps):
-            if policy is None or carry is None:
-                action = rng.uniform(-1.0, 1.0, env.act_dim)
-            else:
-                action, carry = policy.act(carry, obs, z, explore=explore, rng=rng)
-            obs, reward, _, _, info = env.step(action)
-            if all_obs is not None and all_act is not None:
-                all_obs[i, t] = obs
-                all_act[i, t] = action
-            inputs.append(np.asarray(info["features"][feature], np.float64))
-            returns[i] += float(reward)
-            viol[i] += 0.0 if info["safe"] else 1.0
-        x = np.stack(inputs)
-        phi = policy.features(x) if policy is not None else x
-        achieved[i] = scoring.achieved_skill(phi, settle)
-    distance = scoring.skill_distance(achieved, skills, metric_cov)
-    return EvalResult(skills, achieved, distance, returns, viol / steps, all_obs, all_act)
+    r = execute_skills(
+        policy,
+        env,
+        skills,
+        steps,
+        phi_key=feature,
+        settle=settle,
+        explore=explore,
+        keep_obs=record,
+        keep_actions=record,
+        seed=seed,
+        progress=False,
+    )
+    assert r.achieved is not None
+    distance = scoring.skill_distance(r.achieved, skills, metric_cov)
+    return EvalResult(skills, r.achieved, distance, r.returns, r.violation_rate, r.obs, r.actions)
 
 
 @dataclass

@@ -56,14 +56,12 @@ from services.common.config import (
 from services.common.live import SnapshotView
 from services.common.runtime import ServiceRuntime
 from services.common.weights import apply_weights
-from services.evaluator.acting import Acting, PolicyActing, RandomActing
-from services.evaluator.rollout import run_skill
 from ursa import adapt, scoring
 from ursa.adapt import ITEParams, Observations, SkillMap
 from ursa.config import build_env
 from ursa.envs import allowed_damages
 from ursa.envs.base import ResetFreeEnv
-from ursa.eval.rollout import farthest_point_sampling
+from ursa.eval.rollout import SkillRun, farthest_point_sampling, run_skill
 from ursa.policy import Policy
 from ursa.rundir import atomic_write
 from ursa.threads import limit_threads
@@ -262,16 +260,12 @@ class Evaluator:
             return reply
         self._load_weights()
         seed = int(req.seed) if req.has_seed else self.args.seed + self.evaluations
-        rng = np.random.default_rng(seed)
-        acting: Acting = (
-            PolicyActing(self.policy, rng, self.args.explore)
-            if self.policy_version > 0
-            else RandomActing(self.act_dim, rng)
-        )
+        policy = self._acting()
+        version = self._acting_version(policy)
         self.busy = True
         env = build_env(self.cfg, seed=seed, damage=damage)
         try:
-            res = run_skill(env, acting, skill, int(req.steps), self.feature_key, snap.cov)
+            res = self._run(policy, env, skill, int(req.steps), snap.cov, seed)
         except Exception as e:
             self.failures += 1
             self.log.exception("evaluation failed")
@@ -283,8 +277,7 @@ class Evaluator:
         if not (np.isfinite(res.distance) and np.isfinite(res.ret)):
             self.failures += 1
             reply.error = (
-                f"unavailable: policy version {acting.version} produced non-finite "
-                "actions or features"
+                f"unavailable: policy version {version} produced non-finite actions or features"
             )
             return reply
         self.evaluations += 1
@@ -294,7 +287,7 @@ class Evaluator:
         reply.ret = res.ret
         reply.violations = res.violations
         reply.steps = res.steps
-        reply.policy_version = acting.version
+        reply.policy_version = version
         self.last = {
             "last_distance": res.distance,
             "last_return": res.ret,
@@ -307,7 +300,7 @@ class Evaluator:
             np.round(skill, 3).tolist(),
             res.steps,
             damage or "none",
-            acting.version,
+            version,
             res.distance,
             snap.delta,
             res.ret,
@@ -327,14 +320,32 @@ class Evaluator:
         query.reply(self.rt.topics.evaluate, codec.encode(reply))
 
     # ---- adaptation jobs ---------------------------------------------------------------------
-    def _acting(self, seed: int) -> Acting:
-        """The job's acting: the policy; before any weights, uniform actions as collectors do
-        where φ is provided, and the initial policy (whose encoder gives φ) where it is
-        learned, since uniform actions have no φ in skill space there."""
-        rng = np.random.default_rng(seed)
+    def _acting(self) -> Policy | None:
+        """The policy of an evaluation: the learner's; before any weights, uniform actions as
+        collectors do (None) where φ is provided, and the initial policy (whose encoder gives φ)
+        where it is learned, since uniform actions have no φ in skill space there."""
         if self.policy_version > 0 or self.cfg.learned_feature:
-            return PolicyActing(self.policy, rng, self.args.explore)
-        return RandomActing(self.act_dim, rng)
+            return self.policy
+        return None
+
+    @staticmethod
+    def _acting_version(policy: Policy | None) -> int:
+        """Version of the weights acting (0: none yet, the collector's initial behaviour)."""
+        return max(int(policy.version), 0) if policy is not None else 0
+
+    def _run(
+        self,
+        policy: Policy | None,
+        env: ResetFreeEnv,
+        skill: np.ndarray,
+        steps: int,
+        cov: np.ndarray,
+        seed: int,
+    ) -> SkillRun:
+        """One evaluation by the core's rollout and scoring rule (``ursa.eval.rollout``)."""
+        return run_skill(
+            policy, env, skill, steps, self.feature_key, cov, explore=self.args.explore, seed=seed
+        )
 
     def _job_env(self, run: AdaptRun | None, seed: int) -> ResetFreeEnv:
         """A fresh env: intact (``run`` None) or with the job's damage; rescue off on the A1
@@ -559,13 +570,8 @@ class Evaluator:
             # the map is a property of the run and policy, cached across jobs
             env = self._job_env(None, self.args.seed + row)
             try:
-                res = run_skill(
-                    env,
-                    self._acting(self.args.seed + row),
-                    run.skills[row],
-                    run.steps,
-                    self.feature_key,
-                    run.cov,
+                res = self._run(
+                    self._acting(), env, run.skills[row], run.steps, run.cov, self.args.seed + row
                 )
             finally:
                 env.close()
@@ -621,9 +627,7 @@ class Evaluator:
         seed = run.seed * 100_003 + n
         env = self._job_env(run, seed)
         try:
-            res = run_skill(
-                env, self._acting(seed), run.skills[row], run.steps, self.feature_key, run.cov
-            )
+            res = self._run(self._acting(), env, run.skills[row], run.steps, run.cov, seed)
         finally:
             env.close()
         if not (np.isfinite(res.ret) and np.all(np.isfinite(res.achieved))):

@@ -1,6 +1,7 @@
-"""The evaluation collector: its measurement agrees with ``ursa.serial.evaluate_skills``, it
-validates requests, loads the learner's weights over the bus, and (slow) a policy trained on
-the point env reaches a repertoire skill within δ through ``POST /evaluate``."""
+"""The evaluation collector: it measures by the core's one evaluation rollout
+(``ursa.eval.rollout.run_skill``), validates requests, loads the learner's weights over the bus,
+and (slow) a policy trained on the point env reaches a repertoire skill within δ through
+``POST /evaluate``."""
 
 from __future__ import annotations
 
@@ -20,8 +21,6 @@ from proto import ursa_pb2 as pb
 from services.api.service import ApiArgs, ApiService
 from services.common.bus import query_one
 from services.common.config import RunConfig, config_hash
-from services.evaluator.acting import PolicyActing, RandomActing
-from services.evaluator.rollout import run_skill
 from services.evaluator.service import Evaluator, EvaluatorArgs
 from services.stack import Stack, running_stack, wait_for
 from tests.services._stack import snapshot_msg
@@ -30,11 +29,11 @@ from ursa.config import Config, build_env, preset
 from ursa.envs import allowed_damages
 from ursa.envs.point import PointEnv
 from ursa.eval.loading import read_checkpoint
+from ursa.eval.rollout import run_skill
 from ursa.learner import Learner
 from ursa.policy import Policy, pack_policy_weights
 from ursa.repertoire import Repertoire
 from ursa.scoring import skill_distance
-from ursa.serial import evaluate_skills
 
 RUN = "test"
 torch.set_num_threads(1)
@@ -53,34 +52,6 @@ def _policy(cfg: Config, seed: int = 0) -> Policy:
 
 
 # ---- the measurement -------------------------------------------------------------------------
-def test_run_skill_matches_the_serial_evaluation() -> None:
-    """Same env, same skill, same random draws: the evaluator's numbers are the core's."""
-    cov = np.array([[0.05, 0.01], [0.01, 0.08]])
-    z = np.array([0.5, -0.4])
-    ref = evaluate_skills(None, PointEnv(seed=3), z[None], 120, cov, rng=np.random.default_rng(9))
-    got = run_skill(
-        PointEnv(seed=3), RandomActing(2, np.random.default_rng(9)), z, 120, "position", cov
-    )
-    np.testing.assert_allclose(got.achieved, ref.achieved[0])
-    assert got.distance == pytest.approx(ref.distance[0])
-    assert got.ret == pytest.approx(ref.returns[0])
-    assert got.violations == round(ref.violation_rate[0] * 120) and got.steps == 120
-
-    cfg = preset("tiny", "point")
-    pol = _policy(cfg, seed=1)
-    ref = evaluate_skills(pol, PointEnv(seed=4), z[None], 60, cov, explore=False)
-    got = run_skill(
-        PointEnv(seed=4),
-        PolicyActing(pol, np.random.default_rng(0), explore=False),
-        z,
-        60,
-        "position",
-        cov,
-    )
-    np.testing.assert_allclose(got.achieved, ref.achieved[0], rtol=1e-6)
-    assert got.distance == pytest.approx(ref.distance[0], rel=1e-6)
-
-
 def test_mahalanobis_and_damages() -> None:
     assert skill_distance(np.array([1.0, 0.0]), np.zeros(2), np.diag([4.0, 1.0])) == 0.5
     assert allowed_damages("point") == ("", "none")
@@ -188,12 +159,13 @@ def test_evaluator_serves_queries_and_loads_the_learners_weights(
         )
         assert r is not None and not r.error and r.policy_version == 3
         expected = run_skill(
+            pol,
             build_env(cfg, seed=1),
-            PolicyActing(pol, np.random.default_rng(1)),
-            np.array([0.2, 0.2], np.float32),
+            np.array([0.2, 0.2]),
             50,
             "position",
             np.eye(2) * 0.05,
+            seed=1,
         )
         assert r.distance == pytest.approx(expected.distance, rel=1e-5)
     finally:
@@ -262,22 +234,9 @@ def test_evaluate_trained_point_policy_reaches_a_repertoire_skill(
     rows = rng.choice(len(skills), size=min(32, len(skills)), replace=False)
     measured = []
     for seed, row in enumerate(rows):
-        r = run_skill(
-            build_env(cfg, seed=seed),
-            PolicyActing(policy, np.random.default_rng(seed)),
-            skills[row].astype(np.float32),
-            250,
-            "position",
-            cov,
-        )
-        rnd = run_skill(
-            build_env(cfg, seed=seed),
-            RandomActing(2, np.random.default_rng(seed)),
-            skills[row].astype(np.float32),
-            250,
-            "position",
-            cov,
-        )
+        z = skills[row].astype(np.float32)
+        r = run_skill(policy, build_env(cfg, seed=seed), z, 250, "position", cov, seed=seed)
+        rnd = run_skill(None, build_env(cfg, seed=seed), z, 250, "position", cov, seed=seed)
         measured.append((r.distance, seed, int(row), rnd.distance))
     distances = np.array([m[0] for m in measured])
     random_distances = np.array([m[3] for m in measured])

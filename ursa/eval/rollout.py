@@ -1,11 +1,14 @@
-"""Execute skills with a policy in the real env and record what happened.
+"""Execute skills with a policy in the real env and record what happened: the one rollout of
+every evaluation (the learning tests through ``ursa.serial.evaluate_skills``, ``ursa eval``, the
+evaluator service through :func:`run_skill`).
 
-Every evaluation runs through :func:`execute_skills`: K skills, T steps each, one after the other
-in one reset-free env (as a collector executes them), or each from a freshly righted robot
-(``restand``, used by the damage evaluation so that trials are independent). It records, per
-skill, the mean of chosen ``info["features"]`` entries over the steps, the mean of φ (the
-policy's feature function, i.e. the skill actually achieved), the return, the violation rate
-and optionally the observations.
+:func:`execute_skills` runs K skills, T steps each, one after the other in one reset-free env (as
+a collector executes them), or each from a freshly righted robot (``restand``, used by the damage
+evaluation so that trials are independent). It acts and scores by the rule of
+:mod:`ursa.scoring` (policy mode, settle period), starts a new recurrent state at a rescue (as
+collectors do), and records per skill the mean of chosen ``info["features"]`` entries, the mean
+of φ (the skill actually achieved), the return, the violation rate and optionally the
+observations and actions.
 
 Also here: farthest-point sampling of the N_z most distinct skills of a repertoire in the
 Mahalanobis metric of δ.
@@ -14,6 +17,7 @@ Mahalanobis metric of δ.
 from __future__ import annotations
 
 import math
+import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 
@@ -34,7 +38,7 @@ class Rollouts:
     means: dict[str, np.ndarray]
     """Mean of each recorded ``info["features"]`` entry over the measured steps, (K, F)."""
     achieved: np.ndarray | None
-    """Mean φ over the measured steps (K, D); None without skills."""
+    """Mean φ over the measured steps (K, D); None without skills or without ``phi_key``."""
     returns: np.ndarray
     """Undiscounted return over the T steps (K,)."""
     violation_rate: np.ndarray
@@ -43,11 +47,20 @@ class Rollouts:
     """Mean over the measured steps of |feature_t − skill| per dimension, (K, D), for the
     feature keys that are φ itself (a provided feature)."""
     obs: np.ndarray | None = None
-    """Observations (K, T, obs_dim) when asked for."""
+    """Observations (K, T, obs_dim) after each step, when asked for."""
+    actions: np.ndarray | None = None
+    """Actions (K, T, act_dim) as sent to the env, when asked for."""
+    rescues: int = 0
+    """Rescue teleports during the rollouts (each starts a new recurrent state)."""
     nonfinite_actions: int = 0
     """Actions with a NaN or inf entry (a diverged policy; the env receives them as they are)."""
     steps: int = 0
     settle: int = 0
+
+    @property
+    def unsafe_steps(self) -> np.ndarray:
+        """Unsafe steps of each skill (K,) int."""
+        return np.rint(self.violation_rate * self.steps).astype(np.int64)
 
 
 def farthest_point_sampling(
@@ -110,6 +123,7 @@ def execute_skills(
     settle: int | None = None,
     explore: bool = scoring.EXPLORE,
     keep_obs: bool = False,
+    keep_actions: bool = False,
     restand: bool = False,
     seed: int = 0,
     progress: bool = True,
@@ -117,16 +131,21 @@ def execute_skills(
 ) -> Rollouts:
     """Run each skill of ``skills`` (K, D) for ``steps`` env steps.
 
-    policy: None acts uniformly at random; a policy without skills (``daydreamer``) ignores the
-    skill (pass ``np.zeros((K, 0))``). record: ``info["features"]`` keys whose mean is kept.
-    phi_key: the key φ is computed from (the VAE input or the provided feature); None: no φ.
+    policy: None acts uniformly at random (a collector's prefill; φ is then the ``phi_key``
+    feature itself, which must be a provided feature); a policy without skills (``daydreamer``)
+    ignores the skill (pass ``np.zeros((K, 0))``). record: ``info["features"]`` keys whose mean
+    is kept. phi_key: the key φ is computed from (the VAE input or the provided feature); None:
+    no φ.
     tracking: ``phi_key`` is φ itself (a provided feature): also keep the per-step absolute
     tracking error. settle: the first steps of each skill are executed but not measured
     (default: the scoring rule's, :func:`ursa.scoring.settle_steps`). explore: sampled actions
     (the scoring rule's default) or the policy's mode.
     restand: right the robot (A1) and restart the policy's memory before each skill, so that
     skills are independent trials; otherwise the env runs on without resets and the policy
-    keeps its carry across skills (a collector's behaviour).
+    keeps its carry across skills (a collector's behaviour). A rescue (``info["rescued"]``)
+    starts a new carry either way: the robot was teleported. keep_obs, keep_actions: record the
+    observation after each step and the action sent (replay convention). seed: the random
+    actions, the policy's action noise and its RSSM latents all come from it.
     """
     skills = np.asarray(skills, np.float64)
     if skills.ndim != 2:
@@ -143,11 +162,13 @@ def execute_skills(
     keys = list(dict.fromkeys([*record, *([phi_key] if phi_key else [])]))
     sums = {key: np.zeros((k, int(env.feature_dims[key]))) for key in keys}
     err = np.zeros_like(skills) if tracking and phi_key else None
-    achieved = np.zeros_like(skills) if phi_key and policy is not None and skills.shape[1] else None
+    achieved = np.zeros_like(skills) if phi_key and skills.shape[1] else None
     returns = np.zeros(k)
     unsafe = np.zeros(k)
     nonfinite = 0
     obs_rec = np.zeros((k, steps, env.obs_dim), np.float32) if keep_obs else None
+    act_rec = np.zeros((k, steps, env.act_dim), np.float32) if keep_actions else None
+    rescues = 0
     measured = steps - settle
     obs, _ = env.reset()
     carry: PolicyCarry | None = policy.initial_carry() if policy is not None else None
@@ -170,10 +191,16 @@ def execute_skills(
                     )
                 nonfinite += 0 if np.all(np.isfinite(action)) else 1
                 obs, reward, _, _, info = env.step(action)
+                if info.get("rescued"):
+                    rescues += 1
+                    if policy is not None:
+                        carry = policy.initial_carry()
                 returns[i] += float(reward)
                 unsafe[i] += 0.0 if info["safe"] else 1.0
                 if obs_rec is not None:
                     obs_rec[i, t] = obs
+                if act_rec is not None:
+                    act_rec[i, t] = action
                 if t < settle:
                     continue
                 feats = info["features"]
@@ -183,8 +210,9 @@ def execute_skills(
                     phi_in.append(np.asarray(feats[phi_key], np.float64))
                 if err is not None and phi_key is not None:
                     err[i] += np.abs(np.asarray(feats[phi_key], np.float64) - z)
-            if achieved is not None and policy is not None and phi_in:
-                achieved[i] = policy.features(np.stack(phi_in)).mean(0)
+            if achieved is not None and phi_in:
+                x = np.stack(phi_in)
+                achieved[i] = (policy.features(x) if policy is not None else x).mean(0)
             bar.update(steps)
     finally:
         bar.close()
@@ -196,6 +224,8 @@ def execute_skills(
         returns=returns,
         violation_rate=unsafe / steps,
         obs=obs_rec,
+        actions=act_rec,
+        rescues=rescues,
         steps=steps,
         settle=settle,
         nonfinite_actions=nonfinite,
@@ -203,6 +233,61 @@ def execute_skills(
     if err is not None and phi_key is not None:
         out.abs_error[phi_key] = err / measured
     return out
+
+
+@dataclass(frozen=True)
+class SkillRun:
+    """What one skill achieved in one evaluation (:func:`run_skill`)."""
+
+    achieved: np.ndarray
+    """Mean φ over the steps after the settle period (D,)."""
+    distance: float
+    """Mahalanobis distance of ``achieved`` to the target, Σ = the metric covariance."""
+    ret: float
+    """Undiscounted return over every step."""
+    violations: int
+    """Unsafe steps."""
+    steps: int
+    elapsed_s: float
+
+
+def run_skill(
+    policy: Policy | None,
+    env: ResetFreeEnv,
+    skill: np.ndarray,
+    steps: int,
+    phi_key: str,
+    metric_cov: np.ndarray,
+    explore: bool = scoring.EXPLORE,
+    seed: int = 0,
+    settle: int | None = None,
+) -> SkillRun:
+    """One skill (D,) for ``steps`` steps from the env's state, from a fresh carry, scored in
+    the metric Σ = ``metric_cov`` (:func:`execute_skills` with K = 1): one evaluation of the
+    evaluator service."""
+    t0 = time.perf_counter()
+    skill = np.asarray(skill, np.float64)
+    r = execute_skills(
+        policy,
+        env,
+        skill[None],
+        steps,
+        phi_key=phi_key,
+        settle=settle,
+        explore=explore,
+        seed=seed,
+        progress=False,
+    )
+    assert r.achieved is not None
+    achieved = r.achieved[0]
+    return SkillRun(
+        achieved=achieved,
+        distance=float(scoring.skill_distance(achieved, skill, metric_cov)),
+        ret=float(r.returns[0]),
+        violations=int(r.unsafe_steps[0]),
+        steps=steps,
+        elapsed_s=time.perf_counter() - t0,
+    )
 
 
 def skill_distance(achieved: np.ndarray, skills: np.ndarray, cov: np.ndarray) -> np.ndarray:
