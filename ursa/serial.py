@@ -1,9 +1,10 @@
 """A single-process URSA loop (Alg. 1 and 2 interleaved): the reference behaviour of the
 services, and what the learning tests run.
 
-Each env step: a new KDE skill every ``skill_period`` steps; act with the current policy
-(uniformly random actions during the prefill); record the transition; every ``chunk_len``
-steps the chunk goes to the replay and the features of its safe steps to the repertoire. After
+Each env step (``ursa.acting``, a collector's acting loop): a new KDE skill every
+``skill_period`` steps; act with the current policy (uniformly random actions during the
+prefill); record the transition; every ``chunk_len`` steps the chunk goes to the replay and the
+features of its safe steps to the repertoire. After
 the prefill the learner trains whenever ``updates · B · T < train_ratio · env steps`` (the
 replay ratio), and the policy receives the learner's weights every ``sync_every`` updates. With
 a learned φ the repertoire re-encodes its inputs whenever the learner publishes an encoder.
@@ -18,17 +19,17 @@ from __future__ import annotations
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Any
 
 import numpy as np
 
 from ursa import scoring
+from ursa.acting import Acting, ActingConfig, Chunk
 from ursa.bounds import Box
 from ursa.envs.base import ResetFreeEnv
-from ursa.eval.rollout import execute_skills
+from ursa.eval.rollout import score_skills
 from ursa.learner import Learner, SkillSnapshot
 from ursa.learner_config import LearnerConfig
-from ursa.policy import Policy, PolicyCarry
+from ursa.policy import Policy
 from ursa.repertoire import Repertoire, RepertoireConfig
 from ursa.replay import Replay
 
@@ -97,31 +98,19 @@ def evaluate_skills(
     settle: int | None = None,
 ) -> EvalResult:
     """Run each skill (K, D) for ``steps`` env steps in turn, without resets, and score it by
-    the rule of :mod:`ursa.scoring`: :func:`ursa.eval.rollout.execute_skills` (the one
-    evaluation rollout) with the distance of each achieved skill to its target.
+    the rule of :mod:`ursa.scoring`: :func:`ursa.eval.rollout.score_skills` (the one
+    evaluation rollout, with the distance of each achieved skill to its target).
 
     ``policy`` None acts uniformly at random (φ = the provided feature ``feature``); otherwise
     φ is the policy's (its VAE encoder in ``ursa`` mode) applied to
     ``info["features"][feature]``; distances use Σ = ``metric_cov``, the metric of δ. ``record``
     keeps the observations and actions (replay convention: the observation after each action).
     """
-    skills = np.asarray(skills, np.float64)
-    r = execute_skills(
-        policy,
-        env,
-        skills,
-        steps,
-        phi_key=feature,
-        settle=settle,
-        explore=explore,
-        keep_obs=record,
-        keep_actions=record,
-        seed=seed,
-        progress=False,
+    r, distance = score_skills(
+        policy, env, skills, steps, feature, metric_cov, explore, seed, settle, record
     )
     assert r.achieved is not None
-    distance = scoring.skill_distance(r.achieved, skills, metric_cov)
-    return EvalResult(skills, r.achieved, distance, r.returns, r.violation_rate, r.obs, r.actions)
+    return EvalResult(r.skills, r.achieved, distance, r.returns, r.violation_rate, r.obs, r.actions)
 
 
 @dataclass
@@ -160,15 +149,20 @@ class SerialLoop:
             )
         self.replay = Replay(c.replay_capacity)
         self.rng = np.random.default_rng(c.seed)
-        self.obs, _ = self.env.reset()
-        self.carry: PolicyCarry = self.policy.initial_carry()
-        self.skill = np.zeros(d)
-        self.env_steps = 0
+        self.acting = Acting(
+            self.env,
+            self.policy,
+            ActingConfig(feature=c.feature, skill_period=c.skill_period, chunk_len=c.chunk_len),
+            self.rng,
+        )
         self.unsafe_steps = 0
         self.history: list[dict[str, float]] = []
-        self._chunk: list[dict[str, Any]] = []
-        self._chunk_first = 0
         self._snapshot: SkillSnapshot | None = None
+
+    @property
+    def env_steps(self) -> int:
+        """Env steps collected."""
+        return self.acting.step_count
 
     # --- collection ----------------------------------------------------------------------------
 
@@ -180,63 +174,30 @@ class SerialLoop:
             return np.zeros(rep.config.dim)
         return rep.sample(1, self.rng)[0]
 
-    def _flush(self) -> None:
-        if not self._chunk:
-            return
-        chunk = {k: np.stack([r[k] for r in self._chunk]) for k in self._chunk[0]}
-        self.replay.add(self.stream_id, chunk, self._chunk_first)
-        self._chunk_first += len(self._chunk)
-        self._chunk = []
+    def _store(self, chunk: Chunk) -> None:
+        """A finished chunk into the replay, its safe features into the repertoire."""
+        self.replay.add(self.stream_id, chunk.data, chunk.first_step)
         rep = self.repertoire
-        if rep is not None:
-            safe = chunk["safe"].astype(bool)
-            if safe.any():
-                x = chunk["features"][safe].astype(np.float64)
-                if self.learner_config.mode == "ursa":
-                    rep.commit_many(self.policy.features(x), x)
-                else:
-                    rep.commit_many(x)
+        x = chunk.safe_features.astype(np.float64)
+        if rep is not None and len(x):
+            if self.learner_config.mode == "ursa":
+                rep.commit_many(self.policy.features(x), x)
+            else:
+                rep.commit_many(x)
+
+    def _flush(self) -> None:
+        for chunk in self.acting.flush():
+            self._store(chunk)
 
     def collect(self, steps: int) -> None:
         """Step the env ``steps`` times with the current policy (random during the prefill)."""
-        c = self.config
         for _ in range(steps):
-            if self.env_steps % c.skill_period == 0:
-                self.skill = self._new_skill()
-            if self.env_steps < c.prefill:
-                action = self.rng.uniform(-1.0, 1.0, self.env.act_dim)
-            else:
-                if self.env_steps == c.prefill:
-                    self.carry = self.policy.initial_carry()
-                action, self.carry = self.policy.act(
-                    self.carry, self.obs, self.skill, explore=True, rng=self.rng
-                )
-            obs, reward, _, _, info = self.env.step(action)
-            if info.get("rescued"):
-                # a rescue teleports the robot (the collector does the same): the replay starts
-                # a new segment at the righted robot and the policy a new recurrent state
-                self._flush()
-                self._chunk_first += 1
-                self.carry = self.policy.initial_carry()
-            feats = info["features"].get(c.feature)
-            self._chunk.append(
-                {
-                    "obs": np.asarray(obs, np.float32),
-                    "action": np.asarray(action, np.float32),
-                    "reward": np.float32(reward),
-                    "cost": np.float32(info["cost"]),
-                    "safe": bool(info["safe"]),
-                    "features": np.asarray(
-                        feats if feats is not None else np.zeros(1), np.float32
-                    ).reshape(-1),
-                    "skill": np.asarray(self.skill, np.float32),
-                }
-            )
-            self.unsafe_steps += 0 if info["safe"] else 1
-            self.obs = obs
-            self.env_steps += 1
-            if len(self._chunk) >= c.chunk_len:
-                self._flush()
+            if self.acting.skill_due():
+                self.acting.skill = self._new_skill()
+            res = self.acting.step(random=self.env_steps < self.config.prefill)
+            for chunk in res.chunks:
+                self._store(chunk)
+            self.unsafe_steps += 0 if res.info["safe"] else 1
 
     # --- training ------------------------------------------------------------------------------
 

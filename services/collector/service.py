@@ -40,6 +40,7 @@ from services.common.config import (
 )
 from services.common.runtime import ServiceRuntime
 from services.common.weights import apply_weights
+from ursa.acting import Acting, ActingConfig, Chunk
 from ursa.config import PREFILL, build_env
 from ursa.pace import PaceGate
 from ursa.policy import Policy
@@ -111,7 +112,19 @@ class Collector:
             feat_in_dim=int(self.env.feature_dims[self.feature_key]),
             seed=args.seed,
         )
-        self.carry = self.policy.initial_carry()
+        self.acting = Acting(
+            self.env,
+            self.policy,
+            ActingConfig(
+                feature=self.feature_key,
+                skill_period=self.cfg.collector.skill_period,
+                chunk_len=self.cfg.collector.chunk_len,
+                stamps=True,
+            ),
+            self.rng,
+            seed=args.seed,
+        )
+        """The acting loop (``ursa.acting``): skill, carry, sanitising, chunks, rescues."""
         self.config_hash = config_hash(self.cfg.learner)
 
         self.pub_chunks = publisher(self.rt.session, t.transitions(self.cid), reliable=True)
@@ -124,8 +137,6 @@ class Collector:
         self._recent_chunks: deque[tuple[float, bytes]] = deque()  # (put at, payload)
         self._route_lost = threading.Event()
         self._match_listener = self.pub_chunks.declare_matching_listener(self._on_matching)
-        self.nonfinite_actions = 0
-        """Policy actions with a NaN or inf entry (sanitised before the env and the replay)."""
         self._weights_lock = threading.Lock()
         self._pending_weights: pb.PolicyWeights | None = None
         self._pending_skill: np.ndarray | None = None
@@ -145,13 +156,9 @@ class Collector:
         )
 
         self.policy_version = 0
-        self.skill = np.zeros(self.skill_dim, np.float32)
         self.skill_source = "none"
         self.seq = 0
         self.feat_seq = 0
-        self.step_count = 0
-        self.step_offset = 0
-        """Step indices skipped at rescues (each starts a new replay segment)."""
         self.ret_window: deque[float] = deque(maxlen=1000)
         self.unsafe_window: deque[bool] = deque(maxlen=self.cfg.collector.violation_window)
         self.total_unsafe = 0
@@ -247,44 +254,26 @@ class Collector:
         with self._weights_lock:
             z, self._pending_skill = self._pending_skill, None
         if z is not None:
-            self.skill = z
+            self.acting.skill = z
             self.skill_source = "kde"
 
     # ---- acting --------------------------------------------------------------------------
-    def act(self, obs: np.ndarray, explore: bool = True) -> np.ndarray:
-        """The policy's action for ``obs`` and the current skill; uniformly random actions
-        until the first trained weights arrive (DayDreamer's prefill)."""
-        if self.policy_version <= 0:
-            return self.rng.uniform(-1.0, 1.0, size=self.env.act_dim).astype(np.float32)
-        action, self.carry = self.policy.act(
-            self.carry, obs, self.skill, explore=explore, rng=self.rng
-        )
-        if not np.all(np.isfinite(action)):
-            # a diverged policy must not reach the never-reset env nor the learner's replay
-            self.nonfinite_actions += 1
-            action = np.nan_to_num(action, nan=0.0, posinf=1.0, neginf=-1.0)
-        return action.astype(np.float32)
+    @property
+    def step_count(self) -> int:
+        """Env steps taken."""
+        return self.acting.step_count
+
+    @property
+    def skill(self) -> np.ndarray:
+        """The skill being executed (D,)."""
+        return self.acting.skill
 
     def run(self) -> None:
         cfg = self.cfg.collector
-        obs, _ = self.env.reset(seed=self.args.seed)
         t = self.rt.topics
         existing = query_one(self.rt.session, t.weights, pb.PolicyWeights, timeout_s=1.0)
         if existing is not None:
             self._on_weights(existing, t.weights)
-        fields = (
-            "obs",
-            "action",
-            "reward",
-            "cost",
-            "safe",
-            "features",
-            "skill",
-            "base_pose",
-            "stamp",
-        )
-        buf: dict[str, list[Any]] = {k: [] for k in fields}
-        chunk_first_step = 0
         last_stats = 0.0
         stats_period = 1.0 / cfg.stats_hz
         t_start = time.monotonic()
@@ -295,47 +284,21 @@ class Collector:
                 break
             self._wait_for_pace(sps)
             self.gate.stepped()
-            if self.step_count % cfg.skill_period == 0:
+            if self.acting.skill_due():
                 self._request_skill()
             self._maybe_take_skill()
             self._maybe_load_weights()
-            action = self.act(obs)
-            next_obs, reward, _, _, info = self.env.step(action)
-            feat = np.asarray(info["features"][self.feature_key], np.float32)
+            # uniformly random actions until the first trained weights arrive (the prefill)
+            res = self.acting.step(random=self.policy_version <= 0)
+            for chunk in res.chunks:
+                self._publish_chunk(chunk)
+            info = res.info
             safe = bool(info["safe"])
-            if info.get("rescued"):
-                # a rescue teleports the robot: end the chunk and skip a step index so that the
-                # learner's replay starts a new segment at the righted robot (also when the
-                # rescue falls on a chunk's first step), and start a new recurrent state
-                if buf["obs"]:
-                    self._publish_chunk(buf, chunk_first_step)
-                    buf = {k: [] for k in buf}
-                self.step_offset += 1
-                self.carry = self.policy.initial_carry()
-            if not buf["obs"]:
-                chunk_first_step = self.step_count + self.step_offset
-            # records follow the world model's convention: the observation after the step with
-            # the action that produced it, its reward, cost and safety
-            buf["obs"].append(next_obs)
-            buf["action"].append(action)
-            buf["reward"].append(reward)
-            buf["cost"].append(info["cost"])
-            buf["safe"].append(safe)
-            buf["features"].append(feat)
-            buf["skill"].append(self.skill)
-            buf["stamp"].append(time.time())
-            if "base_position" in info:  # the robot's pose, for the replay's Foxglove view
-                buf["base_pose"].append([*info["base_position"], *info["base_orientation"]])
-            obs = next_obs
-            self.step_count += 1
-            self.ret_window.append(float(reward))
+            self.ret_window.append(res.reward)
             self.unsafe_window.append(not safe)
             self.total_unsafe += int(not safe)
             self.rescues = int(info.get("rescues", 0))
             self.last_info = info
-            if len(buf["obs"]) >= cfg.chunk_len:
-                self._publish_chunk(buf, chunk_first_step)
-                buf = {k: [] for k in buf}
             now = time.monotonic()
             if now - last_stats >= stats_period:
                 dt = now - time_at_last_stats
@@ -349,37 +312,25 @@ class Collector:
                 delay = target - time.monotonic()
                 if delay > 0:
                     time.sleep(delay)
-        if buf["obs"]:
-            self._publish_chunk(buf, chunk_first_step)
+        for chunk in self.acting.flush():
+            self._publish_chunk(chunk)
         self._publish_stats(sps)
 
-    def _publish_chunk(self, buf: dict[str, list[Any]], first_step: int) -> None:
-        arr = {
-            "obs": np.asarray(buf["obs"], np.float32),
-            "action": np.asarray(buf["action"], np.float32),
-            "reward": np.asarray(buf["reward"], np.float32),
-            "cost": np.asarray(buf["cost"], np.float32),
-            "safe": np.asarray(buf["safe"], np.bool_),
-            "features": np.asarray(buf["features"], np.float32),
-            "skill": np.asarray(buf["skill"], np.float32),
-            "stamp": np.asarray(buf["stamp"], np.float64),
-        }
-        if len(buf["base_pose"]) == len(buf["obs"]):
-            arr["base_pose"] = np.asarray(buf["base_pose"], np.float32)
+    def _publish_chunk(self, chunk: Chunk) -> None:
         msg = pb.TransitionChunk(
             header=self.rt.header(),
             collector_id=self.cid,
             seq=self.seq,
-            first_step=first_step,
+            first_step=chunk.first_step,
             policy_version=self.policy_version,
             incarnation=self.incarnation,
             task=self.task,
             damage=self.damage,
-            **{k: codec.to_array(v) for k, v in arr.items()},
+            **{k: codec.to_array(v) for k, v in chunk.data.items()},
         )
         self._send("chunks", self.pub_chunks, codec.encode(msg))
         self.seq += 1
-        safe_feats = arr["features"][arr["safe"]]
+        safe_feats = chunk.safe_features
         if len(safe_feats):
             fm = pb.SafeFeatures(
                 header=self.rt.header(),
@@ -444,7 +395,7 @@ class Collector:
                 "incarnation": self.incarnation,
                 "backlog_chunks": len(self.backlog["chunks"]),
                 "backlog_dropped": self.backlog_dropped,
-                "nonfinite_actions": self.nonfinite_actions,
+                "nonfinite_actions": self.acting.nonfinite_actions,
                 "pace_waiting": float(not self.gate.open()),
                 "pace_wait_s": self.gate.waited_s,
             },

@@ -251,6 +251,39 @@ class SkillRun:
     elapsed_s: float
 
 
+def score_skills(
+    policy: Policy | None,
+    env: ResetFreeEnv,
+    skills: np.ndarray,
+    steps: int,
+    phi_key: str,
+    metric_cov: np.ndarray,
+    explore: bool = scoring.EXPLORE,
+    seed: int = 0,
+    settle: int | None = None,
+    record: bool = False,
+) -> tuple[Rollouts, np.ndarray]:
+    """:func:`execute_skills` of ``skills`` (K, D), reset-free, and the distance (K,) of each
+    achieved skill to its target in the metric Σ = ``metric_cov`` (the scoring rule of
+    :mod:`ursa.scoring`). ``record`` keeps the observations and actions."""
+    skills = np.asarray(skills, np.float64)
+    r = execute_skills(
+        policy,
+        env,
+        skills,
+        steps,
+        phi_key=phi_key,
+        settle=settle,
+        explore=explore,
+        keep_obs=record,
+        keep_actions=record,
+        seed=seed,
+        progress=False,
+    )
+    assert r.achieved is not None
+    return r, scoring.skill_distance(r.achieved, skills, metric_cov)
+
+
 def run_skill(
     policy: Policy | None,
     env: ResetFreeEnv,
@@ -262,27 +295,15 @@ def run_skill(
     seed: int = 0,
     settle: int | None = None,
 ) -> SkillRun:
-    """One skill (D,) for ``steps`` steps from the env's state, from a fresh carry, scored in
-    the metric Σ = ``metric_cov`` (:func:`execute_skills` with K = 1): one evaluation of the
-    evaluator service."""
+    """One skill (D,) for ``steps`` steps from the env's state, from a fresh carry
+    (:func:`score_skills` with K = 1): one evaluation of the evaluator service."""
     t0 = time.perf_counter()
-    skill = np.asarray(skill, np.float64)
-    r = execute_skills(
-        policy,
-        env,
-        skill[None],
-        steps,
-        phi_key=phi_key,
-        settle=settle,
-        explore=explore,
-        seed=seed,
-        progress=False,
-    )
+    z = np.asarray(skill, np.float64)[None]
+    r, distance = score_skills(policy, env, z, steps, phi_key, metric_cov, explore, seed, settle)
     assert r.achieved is not None
-    achieved = r.achieved[0]
     return SkillRun(
-        achieved=achieved,
-        distance=float(scoring.skill_distance(achieved, skill, metric_cov)),
+        achieved=r.achieved[0],
+        distance=float(distance[0]),
         ret=float(r.returns[0]),
         violations=int(r.unsafe_steps[0]),
         steps=steps,

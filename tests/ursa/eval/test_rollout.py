@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 import torch
 
+from tests.ursa.envs.rescued import RescuedPoint
 from ursa.config import preset
 from ursa.envs.point import PointEnv
 from ursa.eval.rollout import execute_skills, run_skill
@@ -21,20 +22,6 @@ def _policy(seed: int = 1) -> Policy:
     cfg = preset("tiny", "point")
     env = PointEnv()
     return Policy(cfg.learner, env.obs_dim, env.act_dim, 2, 2, seed=seed)
-
-
-class _RescuedPoint(PointEnv):
-    """The point env reporting a rescue at given step indices (as the A1 reports one)."""
-
-    def __init__(self, at: set[int], seed: int = 0) -> None:
-        super().__init__(seed=seed)
-        self.at, self.n = at, 0
-
-    def step(self, action: np.ndarray):  # type: ignore[no-untyped-def]
-        out = super().step(action)
-        out[4]["rescued"] = self.n in self.at
-        self.n += 1
-        return out
 
 
 @pytest.mark.parametrize("with_policy", [False, True])
@@ -91,7 +78,7 @@ def test_a_rescue_starts_a_new_recurrent_state() -> None:
     pol = _policy()
     orig = pol.initial_carry
 
-    def carry_starts(env: _RescuedPoint) -> tuple[list[int], int]:
+    def carry_starts(env: RescuedPoint) -> tuple[list[int], int]:
         """Env steps at which the rollout asked for a fresh carry, and its rescue count."""
         starts: list[int] = []
 
@@ -104,9 +91,9 @@ def test_a_rescue_starts_a_new_recurrent_state() -> None:
         return starts, r.rescues
 
     # one carry at the start, and one after each rescue (steps 7 and 30 are the 8th and 31st)
-    assert carry_starts(_RescuedPoint({7, 30})) == ([0, 8, 31], 2)
+    assert carry_starts(RescuedPoint({7, 30})) == ([0, 8, 31], 2)
     # without rescues the carry runs on across skills (reset-free)
-    assert carry_starts(_RescuedPoint(set())) == ([0], 0)
+    assert carry_starts(RescuedPoint(set())) == ([0], 0)
 
 
 def test_run_skill_is_one_seeded_evaluation() -> None:

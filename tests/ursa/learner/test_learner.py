@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 import torch
 
+from tests.ursa.envs.rescued import RescuedPoint
 from tests.ursa.test_policy_numpy import TorchUniforms
 from ursa import kde
 from ursa.envs.point import PointConfig, PointEnv
@@ -407,25 +408,11 @@ def test_serial_loop_ursa_mode_reencodes() -> None:
     np.testing.assert_allclose(rep.skills, loop.learner.encode(rep.inputs), rtol=1e-5, atol=1e-6)
 
 
-class _RescuedPoint(PointEnv):
-    """The point env with a rescue reported at given step indices (as the A1 reports one)."""
-
-    def __init__(self, at: set[int], seed: int = 0) -> None:
-        super().__init__(seed=seed)
-        self.at, self.n = at, 0
-
-    def step(self, action: np.ndarray):  # type: ignore[no-untyped-def]
-        out = super().step(action)
-        out[4]["rescued"] = self.n in self.at
-        self.n += 1
-        return out
-
-
 def test_serial_loop_starts_a_new_segment_and_carry_at_every_rescue() -> None:
     # rescues mid-chunk (step 10), on a chunk's first step (35: records 10..34 fill one chunk)
     # and after the prefill (70)
     sc = SerialConfig(prefill=60, skill_period=100, chunk_len=25, repertoire_size=200, n_z=20)
-    loop = SerialLoop(_RescuedPoint({10, 35, 70}), MICRO, sc)
+    loop = SerialLoop(RescuedPoint({10, 35, 70}), MICRO, sc)
     carries = []
     orig = loop.policy.initial_carry
 
@@ -435,7 +422,7 @@ def test_serial_loop_starts_a_new_segment_and_carry_at_every_rescue() -> None:
 
     loop.policy.initial_carry = spy  # type: ignore[method-assign]
     loop.collect(100)
-    assert loop.replay.gaps == 3 and len(loop.replay) == 100 - len(loop._chunk)
+    assert loop.replay.gaps == 3 and len(loop.replay) == 100 - loop.acting.open_records
     s = loop.replay._streams[loop.stream_id]
     firsts = np.flatnonzero(s.is_first[s.start : s.end])
     np.testing.assert_array_equal(firsts, [0, 10, 35, 70])
