@@ -1,43 +1,61 @@
 """The ``ursa`` command: ``ursa up`` runs the stack; ``ursa eval ...`` evaluates a run;
-``ursa secrets`` writes a run's bus key and router credentials."""
+``ursa export`` writes a run's policy as ONNX; ``ursa secrets`` writes a run's bus key and router
+credentials.
+
+One tyro command line over the dataclass of each subcommand: :class:`services.launcher.UpArgs`,
+:data:`ursa.eval.cli.EvalCommand` (``ursa eval <command>``), :class:`ursa.export.ExportArgs` and
+:class:`services.common.secrets.SecretsArgs`. What a command needs beyond its arguments (torch,
+the envs) is imported once it runs, so that ``ursa --help`` stays quick.
+"""
 
 from __future__ import annotations
 
 import sys
+from dataclasses import dataclass
+from typing import Annotated, Union
+
+import tyro
+
+from services.common.secrets import SecretsArgs, secrets_command
+from services.launcher import UpArgs, up
+from ursa.eval.cli import DESCRIPTION as EVAL_DESCRIPTION
+from ursa.eval.cli import EvalCommand, execute
+from ursa.export import ExportArgs, export_command
 
 
-def main(argv: list[str] | None = None) -> None:
-    args = list(sys.argv[1:] if argv is None else argv)
-    if not args or args[0] in ("-h", "--help"):
-        print(
-            "usage: ursa {up,eval,export,secrets} ...\n\n  up       start the whole stack on "
-            "this machine\n  eval     reproduce the paper's figures from a run directory\n"
-            "  export   write a run's policy as ONNX with a JSON of its interface\n"
-            "  secrets  write a run's bus key and router credentials (<run>/secrets)"
-        )
-        raise SystemExit(0 if args else 2)
-    cmd, rest = args[0], args[1:]
-    if cmd == "up":
-        import tyro
+@dataclass(frozen=True)
+class EvalCli:
+    """``ursa eval <command>``: one of the commands of :mod:`ursa.eval.cli`."""
 
-        from services.launcher import UpArgs, up
+    command: Annotated[EvalCommand, tyro.conf.arg(name="")]
 
-        raise SystemExit(up(tyro.cli(UpArgs, args=rest)))
-    if cmd == "secrets":
-        from services.common.secrets import main as secrets_main
 
-        raise SystemExit(secrets_main(rest))
-    if cmd == "eval":
-        from ursa.eval.cli import main as eval_main
+Command = Union[  # noqa: UP007 - subcommands are Annotated members of a Union
+    Annotated[UpArgs, tyro.conf.subcommand("up")],
+    Annotated[EvalCli, tyro.conf.subcommand("eval", description=EVAL_DESCRIPTION)],
+    Annotated[ExportArgs, tyro.conf.subcommand("export")],
+    Annotated[SecretsArgs, tyro.conf.subcommand("secrets")],
+]
+"""The subcommands of ``ursa``, for ``tyro.cli`` (their help: the dataclasses' docstrings)."""
 
-        raise SystemExit(eval_main(rest))
-    if cmd == "export":
-        from ursa.export import main as export_main
 
-        raise SystemExit(export_main(rest))
-    print(f"unknown command {cmd!r}; try `ursa --help`", file=sys.stderr)
-    raise SystemExit(2)
+def main(argv: list[str] | None = None) -> int:
+    """Entry point of ``ursa`` (``sys.argv[1:]`` by default); returns the exit status (2 and a
+    message on a bad command line)."""
+    args: UpArgs | EvalCli | ExportArgs | SecretsArgs = tyro.cli(
+        Command,
+        args=sys.argv[1:] if argv is None else argv,
+        prog="ursa",
+        description="URSA: the stack, its evaluation and its policy outside it.",
+    )
+    if isinstance(args, UpArgs):
+        return up(args)
+    if isinstance(args, EvalCli):
+        return execute(args.command)
+    if isinstance(args, ExportArgs):
+        return export_command(args)
+    return secrets_command(args)
 
 
 if __name__ == "__main__":
-    main()
+    raise SystemExit(main())

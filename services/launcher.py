@@ -26,7 +26,7 @@ _COLORS = ["36", "33", "35", "32", "34", "31", "96", "93", "95", "92"]
 
 @dataclass(frozen=True)
 class UpArgs:
-    """``ursa up``: the whole stack on this machine."""
+    """Start the whole stack on this machine."""
 
     preset: Literal["tiny", "point", "small", "paper"] = "small"
     """Config preset of every service (``point``: the point-env learning recipe of the tests)."""

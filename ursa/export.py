@@ -23,15 +23,21 @@ rounding (tested ≤ 1e-5). Needs the ``export`` extra (onnx, onnxruntime).
 from __future__ import annotations
 
 import json
+import sys
+from collections.abc import Sequence
+from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Annotated, Any
 
 import numpy as np
+import tyro
 
-from ursa import policy_np
 from ursa.plain import to_plain
-from ursa.policy import Policy
-from ursa.policy_np import MLPParams, NormLinear, PolicyParams
+
+if TYPE_CHECKING:  # type hints only: policy_np loads torch, which `ursa --help` need not
+    from ursa import policy_np
+    from ursa.policy import Policy
+    from ursa.policy_np import MLPParams, NormLinear, PolicyParams
 
 OPSET = 17
 INPUTS = ("obs", "h", "z", "prev_action", "skill", "u", "eps")
@@ -299,7 +305,7 @@ class OnnxPolicy:
 
 
 def export_run(
-    run: str | Path, out: Path, skill_id: int | None = None, z: list[float] | None = None
+    run: str | Path, out: Path, skill_id: int | None = None, z: Sequence[float] | None = None
 ) -> tuple[Path, Path]:
     """Export the latest checkpoint of a run with a repertoire skill (by id) or a given z."""
     from ursa.eval.loading import load_run
@@ -331,30 +337,45 @@ def export_run(
     return export_policy(policy, loaded.config, skill, out, meta)
 
 
-def main(argv: list[str] | None = None) -> int:
-    """``ursa export RUN (--skill ID | --z Z1 Z2 ...) [--out FILE]``."""
-    import argparse
+@dataclass(frozen=True, kw_only=True)
+class ExportArgs:
+    """Write a run's policy as ONNX with a JSON of its interface (give --skill or --z)."""
 
-    ap = argparse.ArgumentParser(prog="ursa export", description=__doc__.split("\n\n")[0])
-    ap.add_argument("run", help="run directory (or a learner checkpoint file)")
-    group = ap.add_mutually_exclusive_group()
-    group.add_argument("--skill", type=int, help="id of a repertoire skill to execute")
-    group.add_argument("--z", type=float, nargs="+", help="the skill vector itself")
-    ap.add_argument(
-        "--out",
-        type=Path,
-        default=None,
-        help="output .onnx (default: <run>/export/policy.onnx); the JSON goes beside",
-    )
-    a = ap.parse_args(argv)
-    out = (
-        a.out
-        or (Path(a.run) if Path(a.run).is_dir() else Path(a.run).parent) / "export" / "policy.onnx"
-    )
+    run: Annotated[str, tyro.conf.Positional, tyro.conf.arg(metavar="RUN")]
+    """run directory (or a learner checkpoint file)"""
+    skill: Annotated[int | None, tyro.conf.arg(metavar="ID")] = None
+    """id of a repertoire skill to execute (not with --z)"""
+    z: Annotated[tuple[float, ...] | None, tyro.conf.arg(metavar="Z [Z ...]")] = None
+    """the skill vector itself (not with --skill)"""
+    out: Annotated[
+        Path | None,
+        tyro.conf.arg(metavar="FILE", help_behavior_hint="(default: <run>/export/policy.onnx)"),
+    ] = None
+    """output .onnx; the JSON goes beside"""
+
+
+def export_command(a: ExportArgs) -> int:
+    """Run ``ursa export``; returns the exit status (2 with a message on stderr when the skill is
+    missing, given twice or not in the run)."""
+    if a.skill is not None and a.z is not None:
+        print("ursa export: give --skill or --z, not both", file=sys.stderr)
+        return 2
+    run_dir = Path(a.run) if Path(a.run).is_dir() else Path(a.run).parent
+    out = a.out or run_dir / "export" / "policy.onnx"
     try:
         model, js = export_run(a.run, out, skill_id=a.skill, z=a.z)
     except (ValueError, FileNotFoundError) as e:
-        print(f"ursa export: {e}")
+        print(f"ursa export: {e}", file=sys.stderr)
         return 2
     print(f"wrote {model} ({model.stat().st_size} bytes) and {js}")
     return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    """``ursa export RUN (--skill ID | --z Z1 Z2 ...) [--out FILE]``; returns the exit status."""
+    a = tyro.cli(ExportArgs, args=sys.argv[1:] if argv is None else argv, prog="ursa export")
+    return export_command(a)
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -264,19 +264,24 @@ def access_control(run_id: str, upstream_zid: str | None = None) -> dict[str, An
     }
 
 
-def main(argv: list[str] | None = None) -> int:
+@dataclass(frozen=True)
+class SecretsArgs:
+    """Write a run's bus key and router credentials (kept if present) in <run>/secrets."""
+
+    bus: BusConfig = field(default_factory=BusConfig)
+    run: RunConfig = field(default_factory=RunConfig)
+
+
+def secrets_command(args: SecretsArgs) -> int:
     """``ursa secrets``: write a run's secrets (kept if present) and print where."""
-    import tyro
-
-    @dataclass(frozen=True)
-    class SecretsArgs:
-        """Generate a run's bus key and router credentials."""
-
-        bus: BusConfig = field(default_factory=BusConfig)
-        run: RunConfig = field(default_factory=RunConfig)
-
-    args = tyro.cli(SecretsArgs, args=argv)
     d = secrets_dir(args.bus, args.run)
     assert d is not None
     print(generate(d))
     return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    """``ursa secrets`` on its own; returns the exit status."""
+    import tyro
+
+    return secrets_command(tyro.cli(SecretsArgs, args=argv, prog="ursa secrets"))

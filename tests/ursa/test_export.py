@@ -119,7 +119,9 @@ def test_policy_act_equals_the_onnx_rollout() -> None:
         np.testing.assert_allclose(h, carry.h, atol=1e-5)
 
 
-def test_export_command_writes_model_and_interface(tmp_path: Path) -> None:
+def test_export_command_writes_model_and_interface(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
     cfg, learner, pol = _trained_like("point", "tiny")
     run = tmp_path / "run1"
     (run / "config").mkdir(parents=True)
@@ -167,3 +169,6 @@ def test_export_command_writes_model_and_interface(tmp_path: Path) -> None:
     assert json.loads((tmp_path / "z.json").read_text())["skill"] == pytest.approx([0.1, 0.2])
     assert main([str(run), "--skill", "99999"]) == 2  # no such skill
     assert main([str(run), "--z", "1.0"]) == 2  # wrong skill size
+    capsys.readouterr()
+    assert main([str(run), "--skill", str(sid), "--z", "0.1", "-0.2"]) == 2  # both
+    assert "give --skill or --z, not both" in capsys.readouterr().err

@@ -11,17 +11,16 @@ joints), return against trial number for:
 Every trial is one execution of a skill for T steps on the damaged robot, righted where it
 stands with a fresh policy memory and without the env's rescue, as in ``ursa eval damage``.
 Seeds change the env, the action noise and random search's order; the figure shows the median
-and the range over seeds of the best return so far. With ``--reference`` (default) every skill
-is also executed once on each damaged robot, which gives the best skill's damaged return and
-the number of trials each method needs to reach 90 % of it.
+and the range over seeds of the best return so far. Unless ``--no-reference``, every skill is
+also executed once on each damaged robot, which gives the best skill's damaged return and the
+number of trials each method needs to reach 90 % of it. The command line is
+:class:`ursa.eval.cli.AdaptArgs`.
 """
 
 from __future__ import annotations
 
-import argparse
 import dataclasses
 import hashlib
-from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -412,64 +411,3 @@ def _plot(res: dict[str, Any], path: Path) -> None:
     fig.suptitle("Adaptation to damage: median and range over seeds", fontsize=11)
     fig.tight_layout()
     save_figure(fig, path)
-
-
-# ---- command line ---------------------------------------------------------------------------
-def add_parser(sub: Any, common: Callable[[argparse.ArgumentParser], None]) -> None:
-    """Register ``ursa eval adapt`` on the subparsers of ``ursa eval``."""
-    p = sub.add_parser("adapt", help="ITE damage adaptation vs random search and DayDreamer")
-    p.add_argument("run", help="URSA run directory (or checkpoint)")
-    p.add_argument("--baseline", nargs="*", default=[], help="DayDreamer runs (no adaptation)")
-    p.add_argument(
-        "--scenarios",
-        nargs="*",
-        default=None,
-        help="damages: presets, 'intact', or frozen joints joined by '+' (indices 0..11 or "
-        "names such as FL_lower); default: the six presets (A1), intact (point)",
-    )
-    p.add_argument("--skills", type=int, default=None, help="map size (default: the run's N_z)")
-    p.add_argument("--seeds", type=int, default=5, help="adaptations per scenario and method")
-    d = ITEParams()
-    p.add_argument("--budget", type=int, default=d.budget, help="most trials")
-    p.add_argument("--alpha", type=float, default=d.alpha, help="ITE stopping threshold")
-    p.add_argument("--kappa", type=float, default=d.kappa, help="UCB exploration weight")
-    p.add_argument(
-        "--length-scale", type=float, default=d.length_scale, help="Matérn ρ (skill std units)"
-    )
-    p.add_argument("--noise", type=float, default=d.noise, help="GP noise (map range² units)")
-    p.add_argument(
-        "--no-reference",
-        dest="reference",
-        action="store_false",
-        help="skip executing every skill on each damaged robot (no trials-to-90%% numbers)",
-    )
-    p.add_argument("--rescue", action="store_true", help="keep the env's rescue on")
-    common(p)
-
-
-def command(a: argparse.Namespace) -> dict[str, Any]:
-    """``ursa eval adapt``."""
-    from ursa.eval.loading import default_out, load_run
-
-    run = load_run(a.run, seed=a.seed)
-    bases = [load_run(r, seed=a.seed) for r in a.baseline]
-    params = ITEParams(
-        alpha=a.alpha, kappa=a.kappa, budget=a.budget, length_scale=a.length_scale, noise=a.noise
-    )
-    res = run_adapt(
-        run,
-        bases,
-        a.scenarios,
-        a.skills,
-        a.steps,
-        params,
-        a.seeds,
-        a.seed,
-        a.reference,
-        a.rescue,
-        a.explore,
-        not a.no_progress,
-    )
-    out = default_out(a.run, a.out)
-    write_adapt(res, out)
-    return {"command": "adapt", "out": out, "map_cached": res["map"]["cached"], **res["summary"]}

@@ -1,0 +1,76 @@
+"""The ``ursa`` command (``services/cli.py``): one tyro command line over ``up``,
+``eval <command>``, ``export`` and ``secrets``, with the flag spellings of the docs."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+import tyro
+
+from services import cli
+from ursa.eval.cli import AdaptArgs, AllArgs, DamageArgs, DiversityArgs, EmbeddingArgs, parse
+from ursa.export import ExportArgs
+
+
+def test_help_lists_every_command(capsys: pytest.CaptureFixture[str]) -> None:
+    with pytest.raises(SystemExit) as e:
+        cli.main(["--help"])
+    assert e.value.code == 0
+    out = capsys.readouterr().out
+    for name in ("up", "eval", "export", "secrets"):
+        assert name in out
+    with pytest.raises(SystemExit) as e:
+        cli.main(["eval", "--help"])
+    assert e.value.code == 0
+    out = capsys.readouterr().out
+    for name in ("diversity", "damage", "velocity", "embedding", "curves", "adapt", "all"):
+        assert name in out
+    with pytest.raises(SystemExit) as e:
+        cli.main(["nope"])
+    assert e.value.code == 2
+
+
+def test_documented_spellings_parse() -> None:
+    a = parse(["diversity", "r", "--baseline", "b", "--skills", "3", "--steps", "20", "--mode"])
+    assert a == DiversityArgs(run="r", baseline="b", skills=3, steps=20, mode=True)
+    assert not a.explore and DiversityArgs(run="r").explore  # sampled actions by default
+    a = parse(["damage", "u1", "u2", "--baseline", "d1", "d2", "--scenarios", "intact"])
+    assert a == DamageArgs(run=("u1", "u2"), baseline=("d1", "d2"), scenarios=("intact",))
+    a = parse(["adapt", "r", "--scenarios", "front_upper", "FL_lower+RR_hip", "--no-reference"])
+    assert isinstance(a, AdaptArgs) and a.scenarios == ("front_upper", "FL_lower+RR_hip")
+    assert a.no_reference and not a.rescue and a.baseline == ()
+    a = parse(["embedding", "r", "--method", "pca", "--no-progress", "--threads", "2"])
+    assert a == EmbeddingArgs(run="r", method="pca", no_progress=True, threads=2)
+    a = parse(["all", "r", "--baseline", "d", "--out", "o", "--seed", "3"])
+    assert a == AllArgs(run="r", baseline="d", out=Path("o"), seed=3)
+    with pytest.raises(SystemExit):
+        parse(["embedding", "r", "--method", "tsne"])
+
+
+def test_commands_report_errors(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    # a run the command does not fit: 1 and a message; export's exclusive options: 2
+    assert cli.main(["eval", "curves", str(tmp_path / "missing"), "--no-progress"]) == 1
+    assert "ursa eval curves:" in capsys.readouterr().err
+    assert cli.main(["eval", "damage", "--no-progress"]) == 1
+    assert "at least one run" in capsys.readouterr().err
+    assert cli.main(["export", str(tmp_path), "--skill", "1", "--z", "0.4", "-0.1"]) == 2
+    assert "not both" in capsys.readouterr().err
+
+
+def test_export_arguments() -> None:
+    a = tyro.cli(ExportArgs, args=["r", "--z", "0.4", "-0.1", "0.2", "--out", "a.onnx"])
+    assert a == ExportArgs(run="r", z=(0.4, -0.1, 0.2), out=Path("a.onnx"))
+    assert tyro.cli(ExportArgs, args=["r", "--skill", "123"]) == ExportArgs(run="r", skill=123)
+
+
+def test_up_and_secrets_parse(tmp_path: Path) -> None:
+    from services.common.secrets import SecretsArgs
+    from services.launcher import UpArgs
+
+    a = tyro.cli(cli.Command, args=["up", "--env", "point", "--preset", "tiny", "--no-dashboard"])
+    assert a == UpArgs(env="point", preset="tiny", dashboard=False)
+    a = tyro.cli(cli.Command, args=["secrets", "--run.run-id", "r1", "--run.root", str(tmp_path)])
+    assert isinstance(a, SecretsArgs) and a.run.run_id == "r1" and a.run.root == tmp_path
+    e = tyro.cli(cli.Command, args=["eval", "curves", "r", "--window", "100"])
+    assert isinstance(e, cli.EvalCli) and e.command.command == "curves"
