@@ -10,6 +10,7 @@ the envs) is imported once it runs, so that ``ursa --help`` stays quick.
 
 from __future__ import annotations
 
+import dataclasses
 import sys
 from dataclasses import dataclass
 from typing import Annotated, Union
@@ -39,15 +40,29 @@ Command = Union[  # noqa: UP007 - subcommands are Annotated members of a Union
 """The subcommands of ``ursa``, for ``tyro.cli`` (their help: the dataclasses' docstrings)."""
 
 
-def main(argv: list[str] | None = None) -> int:
-    """Entry point of ``ursa`` (``sys.argv[1:]`` by default); returns the exit status (2 and a
-    message on a bad command line)."""
+def parse(argv: list[str]) -> UpArgs | EvalCli | ExportArgs | SecretsArgs:
+    """The command of a command line. ``ursa up [...] -- ARGS`` passes ARGS through to every
+    service (``UpArgs.extra``): tyro would take a service flag such as
+    ``--core.learner.imag-starts`` for one of ``up``'s own."""
+    passthrough: list[str] = []
+    if argv[:1] == ["up"] and "--" in argv:
+        cut = argv.index("--")
+        argv, passthrough = argv[:cut], argv[cut + 1 :]
     args: UpArgs | EvalCli | ExportArgs | SecretsArgs = tyro.cli(
         Command,
-        args=sys.argv[1:] if argv is None else argv,
+        args=argv,
         prog="ursa",
         description="URSA: the stack, its evaluation and its policy outside it.",
     )
+    if isinstance(args, UpArgs) and passthrough:
+        args = dataclasses.replace(args, extra=(*args.extra, *passthrough))
+    return args
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Entry point of ``ursa`` (``sys.argv[1:]`` by default); returns the exit status (2 and a
+    message on a bad command line)."""
+    args = parse(list(sys.argv[1:] if argv is None else argv))
     if isinstance(args, UpArgs):
         return up(args)
     if isinstance(args, EvalCli):

@@ -54,7 +54,8 @@ class UpArgs:
     grace_s: float = 5.0
     """Seconds between SIGTERM and SIGKILL at shutdown."""
     extra: tuple[str, ...] = ()
-    """Extra arguments passed to every service (e.g. ``--core.collector.skill-period 100``)."""
+    """Extra arguments passed to every service, given after ``--``: ``ursa up --env a1 --
+    --core.learner.imag-starts 128``."""
 
 
 class Child:

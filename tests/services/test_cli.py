@@ -74,3 +74,14 @@ def test_up_and_secrets_parse(tmp_path: Path) -> None:
     assert isinstance(a, SecretsArgs) and a.run.run_id == "r1" and a.run.root == tmp_path
     e = tyro.cli(cli.Command, args=["eval", "curves", "r", "--window", "100"])
     assert isinstance(e, cli.EvalCli) and e.command.command == "curves"
+
+
+def test_up_passes_service_flags_after_double_dash() -> None:
+    from services.launcher import UpArgs
+
+    a = cli.parse(["up", "--collectors", "1", "--", "--core.learner.imag-starts", "128"])
+    assert a == UpArgs(collectors=1, extra=("--core.learner.imag-starts", "128"))
+    with pytest.raises(SystemExit):  # without "--", tyro cannot tell them from up's own
+        cli.parse(["up", "--core.learner.imag-starts", "128"])
+    e = cli.parse(["eval", "curves", "r"])  # "--" is up's only
+    assert isinstance(e, cli.EvalCli)
