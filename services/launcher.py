@@ -8,6 +8,7 @@ behind.
 
 from __future__ import annotations
 
+import dataclasses
 import os
 import signal
 import socket
@@ -28,8 +29,10 @@ _COLORS = ["36", "33", "35", "32", "34", "31", "96", "93", "95", "92"]
 class UpArgs:
     """Start the whole stack on this machine."""
 
-    preset: Literal["tiny", "point", "small", "paper"] = "small"
-    """Config preset of every service (``point``: the point-env learning recipe of the tests)."""
+    preset: Literal["auto", "tiny", "point", "small", "cpu", "paper"] = "auto"
+    """Config preset of every service. ``auto``: on the A1 ``paper`` with the learner on CUDA
+    when torch sees a GPU, else ``cpu`` (the A1's CPU recipe); on the point env ``point`` (the
+    point-env learning recipe of the tests)."""
     env: Literal["a1", "point"] = "a1"
     """Environment the collectors run."""
     collectors: int = 2
@@ -106,8 +109,25 @@ def _wait_port(host: str, port: int, timeout: float) -> bool:
     return False
 
 
+def resolve_preset(preset: str, env: str, cuda: bool | None = None) -> tuple[str, list[str]]:
+    """The preset ``ursa up`` runs and the service arguments it adds: ``auto`` is ``point`` on
+    the point env, ``paper`` with the learner on ``cuda`` when a GPU is there (``cuda`` None:
+    ask torch), else ``cpu``. Other presets are taken as they are."""
+    if preset != "auto":
+        return preset, []
+    if env == "point":
+        return "point", []
+    if cuda is None:
+        import torch
+
+        cuda = bool(torch.cuda.is_available())
+    return ("paper", ["--core.learner.device", "cuda"]) if cuda else ("cpu", [])
+
+
 def up(args: UpArgs) -> int:
     """Run the stack until Ctrl-C/SIGTERM or until the router dies; returns an exit code."""
+    name, implied = resolve_preset(args.preset, args.env)
+    args = dataclasses.replace(args, preset=name, extra=(*implied, *args.extra))  # type: ignore[arg-type]
     env = dict(os.environ)
     env.setdefault("PYTHONUNBUFFERED", "1")
     endpoint = f"tcp/{args.host}:{args.router_port}"

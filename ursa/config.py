@@ -1,7 +1,7 @@
 """The whole core config, assembled from each component's config, and its presets.
 
-Presets (``tiny`` for tests, ``point`` the point-env learning recipe, ``small`` for a CPU,
-``paper`` for the paper's sizes) change sizes and rates, never code paths. Every service reads
+Presets (``tiny`` for tests, ``point`` the point-env learning recipe, ``small`` the CPU sizes
+the benchmarks measure, ``cpu`` the A1's CPU recipe, ``paper`` for the paper's sizes) change sizes and rates, never code paths. Every service reads
 the same ``Config`` and saves what it resolved.
 """
 
@@ -18,7 +18,7 @@ from ursa.learner_config import LearnerConfig, learner_preset
 from ursa.pace import PaceMode
 from ursa.repertoire import RepertoireConfig
 
-PresetName = Literal["tiny", "point", "small", "paper"]
+PresetName = Literal["tiny", "point", "small", "cpu", "paper"]
 EnvName = Literal["a1", "point"]
 
 #: Dimension of each provided feature function, by env (the learned one is ``vae``).
@@ -88,10 +88,10 @@ class Config:
 
 
 # The one preset table: every named recipe's sizes (the learner's are in ``learner_preset``).
-_REPERTOIRE_SIZE = {"tiny": 300, "point": 1000, "small": 2000, "paper": 5000}
-_SKILL_PERIOD = {"tiny": 100, "point": 250, "small": 250, "paper": 250}
-_CHUNK_LEN = {"tiny": 25, "point": 25, "small": 50, "paper": 50}
-PREFILL = {"tiny": 2000, "point": 2000, "small": 2000, "paper": 2000}
+_REPERTOIRE_SIZE = {"tiny": 300, "point": 1000, "small": 2000, "cpu": 2000, "paper": 5000}
+_SKILL_PERIOD = {"tiny": 100, "point": 250, "small": 250, "cpu": 250, "paper": 250}
+_CHUNK_LEN = {"tiny": 25, "point": 25, "small": 50, "cpu": 50, "paper": 50}
+PREFILL = {"tiny": 2000, "point": 2000, "small": 2000, "cpu": 2000, "paper": 2000}
 """Env steps of uniformly random actions before the first update (the serial loop; the
 learner service's ``--min-replay``)."""
 TRAIN_STEPS = {"point": 12_000}

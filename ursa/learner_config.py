@@ -17,7 +17,7 @@ Mode = Literal["ursa", "ursa-supervised", "daydreamer"]
 ActorGrad = Literal["dynamics", "reinforce"]
 ComputeDtype = Literal["float32", "bfloat16", "auto"]
 PhiMetric = Literal["skill", "symlog"]
-LearnerPresetName = Literal["tiny", "point", "small", "paper"]
+LearnerPresetName = Literal["tiny", "point", "small", "cpu", "paper"]
 
 
 @dataclass(frozen=True)
@@ -249,6 +249,13 @@ class LearnerConfig:
         return dataclasses.replace(base, **overrides)  # type: ignore[arg-type]
 
     @classmethod
+    def cpu(cls, **overrides: object) -> LearnerConfig:
+        """The A1's CPU recipe (``make run`` without a GPU): ``small`` sizes with 128
+        imagination starts per update, as measured on the A1 in docs/learner.md."""
+        base = cls.small(imag_starts=128)
+        return dataclasses.replace(base, **overrides)  # type: ignore[arg-type]
+
+    @classmethod
     def paper(cls, **overrides: object) -> LearnerConfig:
         """QDAC-MB's sizes (RSSM 512, stoch 32×32, MLPs 2×512, batch 16×64, 255 bins)."""
         base = cls(
@@ -275,6 +282,7 @@ def learner_preset(name: LearnerPresetName, **overrides: object) -> LearnerConfi
         "tiny": LearnerConfig.tiny,
         "point": LearnerConfig.point,
         "small": LearnerConfig.small,
+        "cpu": LearnerConfig.cpu,
         "paper": LearnerConfig.paper,
     }
     if name not in factory:

@@ -28,7 +28,7 @@ def split_preset(argv: Sequence[str]) -> tuple[dict[str, str | None], list[str]]
     """Take ``--preset``, ``--env`` and ``--feature`` out of argv: they pick the defaults of
     every other field (env vars URSA_PRESET, URSA_ENV, URSA_FEATURE)."""
     picked: dict[str, str | None] = {
-        "preset": os.environ.get("URSA_PRESET", "small"),
+        "preset": os.environ.get("URSA_PRESET", "cpu"),
         "env": os.environ.get("URSA_ENV") or None,
         "feature": os.environ.get("URSA_FEATURE") or None,
     }

@@ -85,3 +85,13 @@ def test_up_passes_service_flags_after_double_dash() -> None:
         cli.parse(["up", "--core.learner.imag-starts", "128"])
     e = cli.parse(["eval", "curves", "r"])  # "--" is up's only
     assert isinstance(e, cli.EvalCli)
+
+
+def test_up_auto_preset() -> None:
+    from services.launcher import UpArgs, resolve_preset
+
+    assert resolve_preset("auto", "a1", cuda=False) == ("cpu", [])
+    assert resolve_preset("auto", "a1", cuda=True) == ("paper", ["--core.learner.device", "cuda"])
+    assert resolve_preset("auto", "point", cuda=True) == ("point", [])
+    assert resolve_preset("small", "a1", cuda=True) == ("small", [])
+    assert cli.parse(["up"]) == UpArgs(preset="auto")
