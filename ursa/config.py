@@ -1,8 +1,9 @@
 """The whole core config, assembled from each component's config, and its presets.
 
 Presets (``tiny`` for tests, ``point`` the point-env learning recipe, ``small`` the CPU sizes
-the benchmarks measure, ``cpu`` the A1's CPU recipe, ``paper`` for the paper's sizes) change sizes and rates, never code paths. Every service reads
-the same ``Config`` and saves what it resolved.
+the benchmarks measure, ``cpu`` the A1's CPU recipe, ``paper`` for the paper's sizes) change
+sizes and rates, never code paths. Every service reads the same ``Config`` and saves what it
+resolved.
 """
 
 from __future__ import annotations
