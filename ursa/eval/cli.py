@@ -93,6 +93,8 @@ class DiversityArgs(RolloutArgs):
     """cells per joint (per axis)"""
     settle: Annotated[int | None, _arg("the scoring rule's, a fifth of the steps", "S")] = None
     """first steps of each skill executed but not averaged"""
+    no_random: bool = False
+    """skip the floor: uniformly random actions executed as many times"""
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -234,7 +236,16 @@ def cmd_diversity(a: DiversityArgs) -> dict[str, Any]:
     run = load_run(a.run, seed=a.seed)
     base = load_run(a.baseline, seed=a.seed) if a.baseline else None
     res = run_diversity(
-        run, base, a.skills, a.steps, a.bins, a.settle, a.seed, a.explore, not a.no_progress
+        run,
+        base,
+        a.skills,
+        a.steps,
+        a.bins,
+        a.settle,
+        a.seed,
+        a.explore,
+        not a.no_progress,
+        random=not a.no_random,
     )
     out = default_out(a.run, a.out)
     s = write_diversity(res, out, a.bins)
@@ -242,8 +253,10 @@ def cmd_diversity(a: DiversityArgs) -> dict[str, Any]:
         "command": a.command,
         "out": out,
         "covered": {k: v["covered_cells"] for k, v in s["runs"].items()},
+        "safe_covered": {k: v["safe_covered_cells"] for k, v in s["runs"].items()},
         "total_cells": s["runs"]["ursa"]["total_cells"],
         "ratio": s.get("ratio"),
+        "safe_ratio": s.get("safe_ratio"),
     }
 
 

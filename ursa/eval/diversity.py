@@ -6,7 +6,13 @@ the other without resets; its mean joint angles over the execution (the mean pos
 point env) are binned into a grid of cells per joint (one 2-D grid over the arena on the point
 env). A cell is covered when at least one skill's mean falls in it. A baseline run (``--baseline``,
 e.g. ``daydreamer``) is executed the same number of times: a policy without skills repeats its one
-behaviour, so its count is what a single-skill learner covers.
+behaviour, so its count is what a single-skill learner covers. Uniformly random actions, executed
+as many times (``random``), draw the floor.
+
+Only safe executions count towards the coverage the figure compares (``safe_covered_cells``): an
+execution with any unsafe step (a fall, or the posture task's limits crossed) reaches joint angles
+the safe set excludes, so a policy that falls could cover more cells than one that stays safe.
+``covered_cells`` counts every execution.
 """
 
 from __future__ import annotations
@@ -34,17 +40,25 @@ class DiversityRun:
     key: str
     coverage: Coverage
     skill_ids: np.ndarray
+    safe_coverage: Coverage
+    """Coverage of the executions without an unsafe step (:func:`safe_executions`)."""
+    random: bool = False
+    """Uniformly random actions rather than the run's policy (the floor)."""
 
     def summary(self) -> dict[str, Any]:
         r, run = self.rollouts, self.run
+        safe = safe_executions(r)
         out: dict[str, Any] = {
-            "name": run.name,
-            "mode": run.mode,
-            "updates": run.updates,
+            "name": "random actions" if self.random else run.name,
+            "mode": "random" if self.random else run.mode,
+            "updates": 0 if self.random else run.updates,
             "executions": len(r.skills),
+            "safe_executions": int(safe.sum()),
             "covered_cells": self.coverage.covered,
+            "safe_covered_cells": self.safe_coverage.covered,
             "total_cells": self.coverage.total,
             "coverage_fraction": self.coverage.covered / self.coverage.total,
+            "safe_coverage_fraction": self.safe_coverage.covered / self.coverage.total,
             "per_grid": self.coverage.per_grid(),
             "outside_points": int(sum(self.coverage.outside)),
             "return_mean": float(np.mean(r.returns)),
@@ -52,7 +66,7 @@ class DiversityRun:
             "nonfinite_actions": r.nonfinite_actions,
         }
         rep = run.repertoire
-        if r.achieved is not None and rep is not None and len(rep) > 1:
+        if not self.random and r.achieved is not None and rep is not None and len(rep) > 1:
             dist = skill_distance(r.achieved, r.skills, rep.cov)
             delta = rep.delta()
             out.update(
@@ -61,6 +75,11 @@ class DiversityRun:
                 within_delta_fraction=float(np.mean(dist <= delta)),
             )
         return out
+
+
+def safe_executions(r: Rollouts) -> np.ndarray:
+    """Which executions had no unsafe step (K,) bool."""
+    return np.asarray(r.violation_rate) <= 0.0
 
 
 def execute_for_coverage(
@@ -74,13 +93,16 @@ def execute_for_coverage(
     seed: int = 0,
     explore: bool = scoring.EXPLORE,
     progress: bool = True,
+    random: bool = False,
 ) -> DiversityRun:
-    """Execute a run's skills (or, without skills, ``executions`` repetitions of its policy)
-    and bin the mean features. ``n_skills <= 0``: every skill of the repertoire."""
+    """Execute a run's skills (or, without skills or with ``random`` actions, ``executions``
+    repetitions of its policy) and bin the mean features. ``n_skills <= 0``: every skill of
+    the repertoire."""
     cfg = run.config
-    policy = run.require_policy()
+    policy = None if random else run.require_policy()
     key, specs = coverage_specs(cfg, bins)
-    if run.uses_skills:
+    skilled = run.uses_skills and not random
+    if skilled:
         skills, ids = distinct_skills(run, n_skills)
     else:
         k = executions if executions is not None else max(n_skills, 1)
@@ -93,7 +115,7 @@ def execute_for_coverage(
             skills,
             steps,
             record=(key,),
-            phi_key=cfg.feature_input_key if run.uses_skills else None,
+            phi_key=cfg.feature_input_key if skilled else None,
             settle=settle,
             explore=explore,
             seed=seed,
@@ -102,7 +124,9 @@ def execute_for_coverage(
         )
     finally:
         env.close()
-    return DiversityRun(label, run, rollouts, key, coverage(rollouts.means[key], specs), ids)
+    means = rollouts.means[key]
+    safe = coverage(means[safe_executions(rollouts)], specs)
+    return DiversityRun(label, run, rollouts, key, coverage(means, specs), ids, safe, random)
 
 
 def run_diversity(
@@ -115,9 +139,10 @@ def run_diversity(
     seed: int = 0,
     explore: bool = scoring.EXPLORE,
     progress: bool = True,
+    random: bool = True,
 ) -> list[DiversityRun]:
-    """Coverage of ``run`` (and of ``baseline``, executed as many times). Defaults: N_z skills,
-    T = the run's skill period."""
+    """Coverage of ``run`` (and of ``baseline`` and of uniformly ``random`` actions, each
+    executed as many times). Defaults: N_z skills, T = the run's skill period."""
     n = run.config.repertoire.n_z if n_skills is None else n_skills
     t = run.config.collector.skill_period if steps is None else steps
     main = execute_for_coverage(run, "ursa", n, t, bins, settle, None, seed, explore, progress)
@@ -139,6 +164,13 @@ def run_diversity(
                 progress,
             )
         )
+    if random:
+        k = len(main.rollouts.skills)
+        out.append(
+            execute_for_coverage(
+                run, "random", n, t, bins, settle, k, seed, explore, progress, random=True
+            )
+        )
     return out
 
 
@@ -158,9 +190,17 @@ def write_diversity(results: list[DiversityRun], out: Path, bins: int) -> dict[s
         ],
         "runs": {r.label: r.summary() for r in results},
     }
-    if len(results) > 1:
-        base = results[1].coverage.covered
+    by_label = {r.label: r for r in results}
+    if "baseline" in by_label:
+        base = by_label["baseline"].coverage.covered
         summary["ratio"] = first.coverage.covered / base if base else float("inf")
+        safe_base = by_label["baseline"].safe_coverage.covered
+        safe = first.safe_coverage.covered
+        summary["safe_ratio"] = safe / safe_base if safe_base else float("inf") if safe else 0.0
+    if "random" in by_label:
+        floor = by_label["random"].safe_coverage.covered
+        safe = first.safe_coverage.covered
+        summary["safe_ratio_random"] = safe / floor if floor else float("inf") if safe else 0.0
     write_json(out / "diversity.json", summary)
 
     rows = []
@@ -203,7 +243,12 @@ def write_diversity(results: list[DiversityRun], out: Path, bins: int) -> dict[s
     return summary
 
 
+def _mode(r: DiversityRun) -> str:
+    return "random" if r.random else r.run.mode
+
+
 def _plot(results: list[DiversityRun], path: Path) -> None:
+    """Per run, the cells its safe executions cover."""
     plt = pyplot()
     env = results[0].run.config.env
     if env == "a1":
@@ -217,8 +262,9 @@ def _plot(results: list[DiversityRun], path: Path) -> None:
         for row, r in enumerate(results):
             for j, part in enumerate(JOINT_TYPES):
                 ax = axes[row][j]
-                specs = [s for s in r.coverage.specs if s.name.endswith(part)]
-                grid = np.stack([r.coverage.counts[r.coverage.specs.index(s)] for s in specs])
+                cov = r.safe_coverage
+                specs = [s for s in cov.specs if s.name.endswith(part)]
+                grid = np.stack([cov.counts[cov.specs.index(s)] for s in specs])
                 lo, hi = specs[0].low[0], specs[0].high[0]
                 shown = np.where(grid > 0, np.log1p(grid), np.nan)
                 ax.imshow(
@@ -233,7 +279,7 @@ def _plot(results: list[DiversityRun], path: Path) -> None:
                 ax.set_yticks(range(len(LEGS)), LEGS)
                 n_cov = int(np.count_nonzero(grid))
                 ax.set_title(
-                    f"{r.label} ({r.run.mode}): {part}, {n_cov}/{grid.size} cells", fontsize=9
+                    f"{r.label} ({_mode(r)}): {part}, {n_cov}/{grid.size} safe cells", fontsize=9
                 )
                 if row == len(results) - 1:
                     ax.set_xlabel("mean joint angle (rad)")
@@ -247,7 +293,7 @@ def _plot(results: list[DiversityRun], path: Path) -> None:
         )
         for j, r in enumerate(results):
             ax = axes[0][j]
-            spec, grid = r.coverage.specs[0], r.coverage.counts[0]
+            spec, grid = r.safe_coverage.specs[0], r.safe_coverage.counts[0]
             shown = np.where(grid > 0, np.log1p(grid), np.nan).T
             ax.imshow(
                 shown,
@@ -258,7 +304,7 @@ def _plot(results: list[DiversityRun], path: Path) -> None:
             )
             ax.set_facecolor("#f2f2f2")
             ax.set_title(
-                f"{r.label} ({r.run.mode}): {r.coverage.covered}/{r.coverage.total} cells",
+                f"{r.label} ({_mode(r)}): {r.safe_coverage.covered}/{r.coverage.total} safe cells",
                 fontsize=9,
             )
             ax.set_xlabel("mean x")

@@ -94,12 +94,17 @@ def _check_final_rates(run_dir: Path, c: dict[str, Any]) -> None:
     )
 
 
-def _hand_cells(s: dict[str, Any], label: str, out: Path) -> dict[str, Counter[tuple[int, ...]]]:
+def _hand_cells(
+    s: dict[str, Any], label: str, out: Path, safe_only: bool = False
+) -> dict[str, Counter[tuple[int, ...]]]:
     """Grid name -> how many of ``label``'s mean features fall in each cell, counted here from
     diversity_means.csv and the grids' boxes in diversity.json (half-open cells, the last one
-    closed; means outside the box in no cell)."""
+    closed; means outside the box in no cell); ``safe_only``: of the executions without an
+    unsafe step."""
     key = s["feature_key"]
     rows = [r for r in _csv(out / "diversity_means.csv") if r["label"] == label]
+    if safe_only:
+        rows = [r for r in rows if float(r["violation_rate"]) == 0.0]
     cells: dict[str, Counter[tuple[int, ...]]] = {}
     for g in s["grids"]:
         count: Counter[tuple[int, ...]] = Counter()
@@ -180,8 +185,8 @@ def test_diversity_point(point_run: Path, point_dd: Path, tmp_path: Path) -> Non
     _png(out / "diversity.png")
     assert s["env"] == "point" and s["feature_key"] == "position"
     rows = _csv(out / "diversity_means.csv")
-    assert len(rows) == 24
-    for label in ("ursa", "baseline"):
+    assert len(rows) == 36  # 12 executions of URSA, of the baseline and of random actions
+    for label in ("ursa", "baseline", "random"):
         r = s["runs"][label]
         mine = [row for row in rows if row["label"] == label]
         means = np.array([[float(m["mean_position_0"]), float(m["mean_position_1"])] for m in mine])
@@ -190,6 +195,10 @@ def test_diversity_point(point_run: Path, point_dd: Path, tmp_path: Path) -> Non
         cells = Counter(tuple(np.minimum(((p + 1.0) / 0.2).astype(int), 9).tolist()) for p in means)
         assert _hand_cells(s, label, out) == {"position": cells}
         assert r["covered_cells"] == len(cells) and r["total_cells"] == 100
+        # only the executions without an unsafe step count towards the figure's coverage
+        safe = _hand_cells(s, label, out, safe_only=True)["position"]
+        assert r["safe_covered_cells"] == len(safe) <= len(cells)
+        assert r["safe_executions"] == sum(float(m["violation_rate"]) == 0.0 for m in mine)
         # and they are the very cells (and counts) the cells CSV lists
         listed = {
             tuple(int(x) for x in c["cell"].split()): int(c["count"])
@@ -204,9 +213,17 @@ def test_diversity_point(point_run: Path, point_dd: Path, tmp_path: Path) -> Non
         assert r["violation_rate_mean"] == pytest.approx(
             np.mean([float(m["violation_rate"]) for m in mine]), rel=1e-5, abs=1e-6
         )
-    assert s["runs"]["baseline"]["mode"] == "daydreamer"
-    assert 0.0 <= s["runs"]["ursa"]["within_delta_fraction"] <= 1.0
-    assert s["ratio"] == s["runs"]["ursa"]["covered_cells"] / s["runs"]["baseline"]["covered_cells"]
+    runs = s["runs"]
+    assert runs["baseline"]["mode"] == "daydreamer" and runs["random"]["mode"] == "random"
+    assert 0.0 <= runs["ursa"]["within_delta_fraction"] <= 1.0
+    assert "within_delta_fraction" not in runs["random"]
+    assert s["ratio"] == runs["ursa"]["covered_cells"] / runs["baseline"]["covered_cells"]
+    for key, other in (("safe_ratio", "baseline"), ("safe_ratio_random", "random")):
+        if runs[other]["safe_covered_cells"]:
+            assert s[key] == runs["ursa"]["safe_covered_cells"] / runs[other]["safe_covered_cells"]
+    # random actions: the mean positions of 12 uniformly random walks differ
+    rand = np.array([[float(m["mean_position_0"]), float(m["mean_position_1"])] for m in rows[24:]])
+    assert len(np.unique(rand.round(6), axis=0)) == 12
 
 
 def test_default_out_is_run_eval(point_run: Path) -> None:
