@@ -114,7 +114,7 @@ def collector(cfg, steps: int, router: str, runs: Path) -> tuple[float, float, f
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__)
     ap.add_argument("--quick", action="store_true", help="finish within 60 s")
-    ap.add_argument("--preset", default="small", choices=["tiny", "small", "paper"])
+    ap.add_argument("--preset", default="small", choices=["tiny", "point", "small", "cpu", "paper"])
     ap.add_argument("--env", default="a1", choices=["a1", "point"])
     a = ap.parse_args()
     torch.set_num_threads(1)

@@ -16,7 +16,7 @@ from ursa.config import build_env, preset
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__)
-    ap.add_argument("--preset", default="small", choices=["tiny", "small", "paper"])
+    ap.add_argument("--preset", default="small", choices=["tiny", "point", "small", "cpu", "paper"])
     ap.add_argument("--env", default="a1", choices=["a1", "point"])
     ap.add_argument("--steps", type=int, default=6000)
     ap.add_argument("--seed", type=int, default=0)

@@ -28,11 +28,13 @@ def _root(config: pytest.Config) -> Path:
 def pytest_collection_modifyitems(
     session: pytest.Session, config: pytest.Config, items: list[pytest.Item]
 ) -> None:
-    """Start the point-env trainings as soon as a collected test needs them: they run in the
-    background (at a lowered priority) beside the tests that come before the learning tests."""
+    """Start the trainings of :mod:`tests.trained` as soon as a collected test needs them: they
+    run in the background (at a lowered priority) beside the tests that come before the
+    learning tests."""
     if config.option.collectonly:
         return
-    if any("point_runs" in getattr(item, "fixturenames", ()) for item in items):
+    users = ("point_runs", "a1_cpu_run")
+    if any(u in getattr(item, "fixturenames", ()) for item in items for u in users):
         from tests.trained import Training
 
         _training["job"] = Training(_root(config))
@@ -68,3 +70,13 @@ def point_runs(pytestconfig: pytest.Config) -> dict[str, Any]:
     out = job.result()
     print(f"\npoint runs in {job.root}: {out['seconds']} s (cached: {out['cached']})")
     return out
+
+
+@pytest.fixture(scope="session")
+def a1_cpu_run(point_runs: dict[str, Any]) -> Path:
+    """The A1 run of the CPU recipe (:data:`tests.trained.A1_RUN`), trained beside the point
+    runs."""
+    from tests.trained import A1_RUN
+
+    path: Path = point_runs["runs"][A1_RUN]
+    return path

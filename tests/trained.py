@@ -6,7 +6,9 @@ Every run is the core's ``point`` preset (``ursa.config.preset("point", "point")
 as a run directory (:func:`ursa.eval.loading.save_serial_run`), which ``ursa eval`` and the
 evaluator service read like runs of the services: URSA (``ursa-supervised``, φ = position) for
 each of :data:`SEEDS`, and one DayDreamer run (reward only) with the same recipe and budget.
-They train once per test session, two processes at once.
+Beside them, :data:`A1_RUN`: the A1's CPU recipe (preset ``cpu``, URSA with the learned φ)
+trained the same way for ``TRAIN_STEPS["cpu"]`` env steps (issue 20's A1 learning test).
+They train once per test session, two processes at once, the A1 run first (the longest).
 
 ``URSA_TRAINED_POINT_DIR``: keep the runs there and reuse them while their recipe is unchanged
 (a ``recipe.json`` beside them says which recipe trained them).
@@ -50,14 +52,34 @@ RUNS: dict[str, tuple[Mode, int]] = {
     **{f"ursa-s{s}": ("ursa-supervised", s) for s in SEEDS},
     "daydreamer": ("daydreamer", SEEDS[0]),
 }
+A1_RUN = "a1-cpu"
+"""The A1 run of the CPU recipe (seed 0)."""
+A1_PRESET: PresetName = "cpu"
+
+
+def run_config(name: str) -> Config:
+    """The core config of the run ``name`` (:data:`RUNS` or :data:`A1_RUN`)."""
+    if name == A1_RUN:
+        return preset(A1_PRESET, "a1")
+    mode, seed = RUNS[name]
+    return point_config(mode, seed)
+
+
+def run_budget(name: str) -> tuple[int, int]:
+    """(prefill, env steps in all) of the run ``name``: its preset's."""
+    p = A1_PRESET if name == A1_RUN else PRESET
+    return PREFILL[p], TRAIN_STEPS[p]
+
+
+ALL_RUNS = (A1_RUN, *RUNS)
+"""Every run, in the order they start."""
 
 
 def recipe() -> dict[str, Any]:
     """Everything that decides what the runs learn (compared with a cache's ``recipe.json``)."""
     return {
-        "config": {name: to_plain(point_config(m, s)) for name, (m, s) in RUNS.items()},
-        "prefill": PREFILL_STEPS,
-        "env_steps": ENV_STEPS,
+        "config": {name: to_plain(run_config(name)) for name in ALL_RUNS},
+        "budget": {name: run_budget(name) for name in ALL_RUNS},
     }
 
 
@@ -75,12 +97,12 @@ def _train(args: tuple[str, str]) -> tuple[str, float]:
 
     limit_threads()
     root, name = args
-    mode, seed = RUNS[name]
-    cfg = point_config(mode, seed)
+    cfg = run_config(name)
+    prefill, steps = run_budget(name)
     start = time.perf_counter()
-    loop = make_serial_loop(cfg, prefill=PREFILL_STEPS, seed=seed)
+    loop = make_serial_loop(cfg, prefill=prefill, seed=cfg.learner.seed)
     rec = SerialRecorder(loop)
-    loop.run(ENV_STEPS - loop.env_steps, callback=rec, callback_every=1000)
+    loop.run(steps - loop.env_steps, callback=rec, callback_every=1000)
     run = save_serial_run(loop, cfg, Path(root) / name, rec)
     return str(run), time.perf_counter() - start
 
@@ -100,18 +122,18 @@ class Training:
         self._jobs: dict[str, Any] = {}
         if self.cached():
             return
-        workers = min(len(RUNS), max(1, os.cpu_count() or 1))
+        workers = min(len(ALL_RUNS), max(1, os.cpu_count() or 1))
         ctx = multiprocessing.get_context("spawn")
         self._ex = ProcessPoolExecutor(workers, mp_context=ctx, initializer=_lower_priority)
-        # the slowest (URSA) runs first, the cheaper daydreamer run last
-        self._jobs = {name: self._ex.submit(_train, (str(root), name)) for name in RUNS}
+        # the slowest runs first (A1, then URSA), the cheaper daydreamer run last
+        self._jobs = {name: self._ex.submit(_train, (str(root), name)) for name in ALL_RUNS}
 
     def cached(self) -> bool:
         return self.stamp.exists() and json.loads(self.stamp.read_text()).get("recipe") == self.want
 
     def result(self) -> dict[str, Any]:
         """Run dirs (plus ``ursa``: the first seed's), seconds per run and whether cached."""
-        runs: dict[str, Path] = {name: self.root / name for name in RUNS}
+        runs: dict[str, Path] = {name: self.root / name for name in ALL_RUNS}
         runs["ursa"] = runs[f"ursa-s{SEEDS[0]}"]
         if self._ex is None:
             info = json.loads(self.stamp.read_text())

@@ -19,7 +19,7 @@ def test_every_entry_point_offers_the_core_presets() -> None:
     core = typing.get_args(PresetName)
     assert core == PRESETS
     hints = typing.get_type_hints(UpArgs)
-    assert typing.get_args(hints["preset"]) == core
+    assert typing.get_args(hints["preset"]) == ("auto", *core)  # auto picks one of them
 
 
 def test_the_learning_tests_train_the_point_preset() -> None:
@@ -35,6 +35,9 @@ def test_the_learning_tests_train_the_point_preset() -> None:
     tiny = preset("tiny", "point").learner
     assert (cfg.learner.deter, cfg.learner.units) == (tiny.deter, tiny.units)
     assert cfg.learner.delta_scale == 0.25 and cfg.learner.train_ratio == 128.0
+    # the A1 run of the CPU recipe is the core's cpu preset, with its budget
+    assert trained.run_config(trained.A1_RUN) == preset("cpu", "a1")
+    assert trained.run_budget(trained.A1_RUN) == (PREFILL["cpu"], TRAIN_STEPS["cpu"])
 
 
 def test_environment_defaults_are_read_when_the_config_is_made(
