@@ -22,11 +22,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import os
-import sys
 import time
-import types
-import typing
-import warnings
 from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -41,7 +37,7 @@ from ursa.config import PROVIDED_FEATURES, Config, build_env, with_feature
 from ursa.envs.base import ResetFreeEnv
 from ursa.learner import Learner
 from ursa.learner_config import LearnerConfig
-from ursa.plain import to_plain
+from ursa.plain import from_plain, to_plain
 from ursa.policy import Policy
 from ursa.repertoire import Repertoire
 from ursa.rundir import RunDir, atomic_write
@@ -49,71 +45,6 @@ from ursa.serial import SerialConfig, SerialLoop
 
 #: Resolved configs tried in this order (the learner's holds the learner config of the checkpoint).
 CONFIG_PREFERENCE = ("learner", "serial", "repertoire", "evaluator", "collector")
-
-
-# --- dataclasses <-> plain trees -------------------------------------------------------------
-
-
-def from_plain(cls: type[Any], data: Any) -> Any:
-    """Rebuild a dataclass ``cls`` from :func:`to_plain`'s output.
-
-    Nested dataclasses, tuples (lists in YAML), ``X | None``, ``Literal``, ``Path`` and plain
-    scalars are converted by the field's annotation. Missing fields keep their defaults; unknown
-    keys are ignored with a warning (a config written by a newer version still loads).
-    """
-    if not isinstance(data, dict):
-        raise TypeError(f"{cls.__name__}: expected a mapping, got {type(data).__name__}")
-    hints = typing.get_type_hints(cls, vars(sys.modules[cls.__module__]))
-    names = {f.name for f in dataclasses.fields(cls) if f.init}
-    unknown = sorted(set(data) - names)
-    if unknown:
-        warnings.warn(f"{cls.__name__}: ignoring unknown config keys {unknown}", stacklevel=2)
-    kwargs = {k: _convert(hints[k], v) for k, v in data.items() if k in names}
-    return cls(**kwargs)
-
-
-def _convert(tp: Any, value: Any) -> Any:
-    origin = typing.get_origin(tp)
-    args = typing.get_args(tp)
-    if value is None:
-        return None
-    if dataclasses.is_dataclass(tp) and isinstance(tp, type):
-        return from_plain(tp, value)
-    if origin in (typing.Union, types.UnionType):
-        inner = [a for a in args if a is not type(None)]
-        errors: list[Exception] = []
-        for a in inner:
-            try:
-                return _convert(a, value)
-            except (TypeError, ValueError) as e:
-                errors.append(e)
-        raise TypeError(f"cannot convert {value!r} to {tp}: {errors}")
-    if origin is typing.Literal:
-        if value not in args:
-            raise ValueError(f"{value!r} is not one of {args}")
-        return value
-    if origin is tuple:
-        seq = list(value)
-        if len(args) == 2 and args[1] is Ellipsis:
-            return tuple(_convert(args[0], v) for v in seq)
-        if args and len(args) != len(seq):
-            raise ValueError(f"expected {len(args)} items, got {len(seq)}")
-        if not args:
-            return tuple(seq)
-        return tuple(_convert(a, v) for a, v in zip(args, seq, strict=True))
-    if origin is list:
-        return [_convert(args[0], v) if args else v for v in value]
-    if origin is dict:
-        return dict(value)
-    if tp is Path:
-        return Path(value)
-    if tp is float and isinstance(value, int | float) and not isinstance(value, bool):
-        return float(value)
-    if tp is int and isinstance(value, float) and value.is_integer():
-        return int(value)
-    if tp in (int, float, str, bool) and not isinstance(value, tp):
-        raise TypeError(f"expected {tp.__name__}, got {value!r}")
-    return value
 
 
 # --- run directories -------------------------------------------------------------------------
