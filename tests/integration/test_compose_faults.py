@@ -37,21 +37,19 @@ import signal
 import subprocess
 import threading
 import time
-import uuid
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
 import pytest
 
-from tests.integration.test_compose import (  # noqa: F401 - `image` is a fixture
+from tests.integration.compose import (  # noqa: F401 - `image` is a fixture
     ROOT,
     Stack,
-    _compose_command,
-    _free_port,
-    _log,
-    _wait,
+    compose_stack,
     image,
+    log,
+    wait,
 )
 
 pytestmark = [pytest.mark.slow, pytest.mark.docker]
@@ -186,7 +184,7 @@ class Faults:
         path = FIGURES / f"{name}.png"
         fig.savefig(path)
         plt.close(fig)
-        _log(f"figure {path}")
+        log(f"figure {path}")
         return path
 
 
@@ -204,61 +202,44 @@ volumes:
 
 @pytest.fixture(scope="module")
 def faults(image: str, tmp_path_factory: pytest.TempPathFactory) -> Iterator[Faults]:  # noqa: F811
-    compose = _compose_command()
-    assert compose is not None
     override = tmp_path_factory.mktemp("compose") / "tmpfs-runs.yaml"
     override.write_text(OVERRIDE)
-    project = f"ursafaults{uuid.uuid4().hex[:8]}"
-    env = {
-        **os.environ,
-        "URSA_IMAGE": image,
-        "URSA_ENV": "point",
-        "URSA_PRESET": "tiny",
-        "URSA_RUN_ID": RUN_ID,
-        "URSA_API_PORT": str(_free_port()),
-        "URSA_DASHBOARD_PORT": str(_free_port()),
-        "URSA_ROUTER_PORT": str(_free_port()),
-        "URSA_PUBLISH_ADDR": "127.0.0.1",
-        "URSA_ROUTER_PUBLISH_ADDR": "127.0.0.1",
-        "URSA_STOP_GRACE": "30s",
-        "URSA_COLLECTOR_ARGS": os.environ.get("URSA_TEST_COLLECTOR_ARGS", "--realtime-factor 10")
+    with compose_stack(
+        image,
+        project_prefix="ursafaults",
+        run_id=RUN_ID,
+        realtime_factor=10,
         # unpaced (as a real robot): chunks keep coming whatever the learner does
-        + " --core.collector.pace free",
-        "URSA_LEARNER_ARGS": "--checkpoint-every-s 2 --min-replay 500",
-    }
-    for k in ("URSA_ARGS", "COMPOSE_FILE", "COMPOSE_PROJECT_NAME"):
-        env.pop(k, None)
-    files = (ROOT / "compose.yaml", ROOT / "docker" / "compose.two-hosts.yaml", override)
-    stack = Stack(compose, project, env, files)
-    t = time.monotonic()
-    f: Faults | None = None
-    try:
-        _log(f"project {project}: up (2 collectors + 1 behind router2, no evaluator/dashboard)")
-        stack.compose(
-            "up", "-d", "--no-build", "--scale", "collector=2", "--scale", "collector2=1",
-            "router", "repertoire", "learner", "api", "collector", "router2", "collector2",
-        )  # fmt: skip
-        _wait("the API to answer /health", lambda: stack.get("/health"), 240)
-        f = Faults(stack)
-        f.start()
-        _wait(
-            "chunks from 3 collectors at the learner",
-            lambda: sum(k.startswith("chunks/") for k in (f.learner() or {})) >= 3,
-            300,
-        )
-        _log(f"stack up in {time.monotonic() - t:.0f} s")
-        yield f
-    finally:
-        if f is not None:
-            f.stop()
-        dest = ROOT / "test-artifacts" / f"compose-faults-{project}"
+        collector_args="--core.collector.pace free",
+        env={"URSA_LEARNER_ARGS": "--checkpoint-every-s 2 --min-replay 500"},
+        files=(ROOT / "compose.yaml", ROOT / "docker" / "compose.two-hosts.yaml", override),
+        logs_prefix="compose-faults",
+        save_logs="always",
+    ) as stack:
+        t = time.monotonic()
+        f: Faults | None = None
         try:
-            stack.save_logs(dest)
-            _log(f"container logs saved under {dest}")
-        except Exception as e:
-            _log(f"could not save logs: {e}")
-        stack.compose("down", "-v", "--remove-orphans", timeout=600, check=False)
-        _log(f"stack removed; module took {time.monotonic() - t:.0f} s")
+            log(
+                f"project {stack.project}: up (2 collectors + 1 behind router2, "
+                "no evaluator/dashboard)"
+            )
+            stack.compose(
+                "up", "-d", "--no-build", "--scale", "collector=2", "--scale", "collector2=1",
+                "router", "repertoire", "learner", "api", "collector", "router2", "collector2",
+            )  # fmt: skip
+            wait("the API to answer /health", lambda: stack.get("/health"), 240)
+            f = Faults(stack)
+            f.start()
+            wait(
+                "chunks from 3 collectors at the learner",
+                lambda: sum(k.startswith("chunks/") for k in (f.learner() or {})) >= 3,
+                300,
+            )
+            log(f"stack up in {time.monotonic() - t:.0f} s")
+            yield f
+        finally:
+            if f is not None:
+                f.stop()
 
 
 def _logs(container: str) -> str:
@@ -270,12 +251,12 @@ def _logs(container: str) -> str:
 def test_collector_behind_a_second_router_reaches_the_learner(faults: Faults) -> None:
     t0 = time.time()
     (c2, c2_container), *_ = faults.collector_ids("collector2").items()
-    first = _wait(
+    first = wait(
         f"chunks of {c2} (behind router2) at the learner",
         lambda: s if (s := faults.learner()) and s.get(f"chunks/{c2}", 0) > 0 else None,
         120,
     )
-    later = _wait(
+    later = wait(
         f"more chunks of {c2}",
         lambda: (
             s
@@ -286,7 +267,7 @@ def test_collector_behind_a_second_router_reaches_the_learner(faults: Faults) ->
     )
     # the other way: the learner's weights reach the collector behind router2 (its stats, which
     # come back across the bridge, carry the policy version it acts with)
-    c2_stats = _wait(
+    c2_stats = wait(
         f"{c2} acting with learner weights (policy_version > 0)",
         lambda: (
             s if (s := faults.stack.stats("collector", c2)) and s["policy_version"] > 0 else None
@@ -308,7 +289,7 @@ def test_collector_behind_a_second_router_reaches_the_learner(faults: Faults) ->
     out = _docker("exec", c2_container, "python", "-c", probe, timeout=60)
     router2 = faults.stack.containers("router2")[0]
     router2_log = _logs(router2)
-    _log(
+    log(
         f"{c2} behind router2: {first[f'chunks/{c2}']:.0f} -> {later[f'chunks/{c2}']:.0f} chunks "
         f"at the learner, gaps {later[f'gaps/{c2}']:.0f}, missing {later[f'missing/{c2}']:.0f}; "
         f"its policy version {c2_stats['policy_version']:.0f}; client without credentials: {out}"
@@ -331,27 +312,27 @@ def test_partitioned_collector_drains_its_backlog_without_loss(faults: Faults) -
     ids = faults.collector_ids("collector")
     cid, container = sorted(ids.items())[0]
     network = f"{faults.stack.project}_default"
-    before = _wait("learner stats", faults.learner, 30)
+    before = wait("learner stats", faults.learner, 30)
     n0 = before[f"chunks/{cid}"]
     t_cut = time.time()
     _docker("network", "disconnect", network, container)
-    _log(f"collector {cid} disconnected from {network} ({n0:.0f} chunks received so far)")
+    log(f"collector {cid} disconnected from {network} ({n0:.0f} chunks received so far)")
     try:
         time.sleep(PARTITION_S)
     finally:
         _docker("network", "connect", network, container)
     t_back = time.time()
-    _log(f"collector {cid} reconnected after {t_back - t_cut:.0f} s")
+    log(f"collector {cid} reconnected after {t_back - t_cut:.0f} s")
     # while cut off, it went on collecting into its backlog (its own stats say how much once
     # they can reach us); drained when the learner has every chunk it numbered
-    produced = _wait(
+    produced = wait(
         f"stats of {cid} after reconnecting, counting the chunks it made meanwhile",
         lambda: (
             s if (s := faults.stack.stats("collector", cid)) and s["chunks"] > n0 + 10 else None
         ),
         120,
     )
-    drained = _wait(
+    drained = wait(
         f"the learner to receive {cid}'s backlog ({produced['chunks']:.0f} chunks numbered)",
         lambda: (
             s if (s := faults.learner()) and s[f"next_seq/{cid}"] >= produced["chunks"] else None
@@ -365,7 +346,7 @@ def test_partitioned_collector_drains_its_backlog_without_loss(faults: Faults) -
     n_back = faults.at(f"chunks/{cid}", t_back)
     got_during = n_back - n_half
     backlog = drained[f"chunks/{cid}"] - n_back
-    _log(
+    log(
         f"{cid}: {n_half - n0:.0f} chunks arrived in the partition's first half, "
         f"{got_during:.0f} in its second, {backlog:.0f} after it "
         f"(drained {t_drained - t_back:.0f} s after reconnecting); gaps "
@@ -413,7 +394,7 @@ def _checkpoint_updates(path: Path) -> int:
 
 def test_learner_killed_during_checkpoint_write_resumes_from_previous(faults: Faults) -> None:
     ckpt_dir = faults.run_dir / "checkpoints"
-    _wait(
+    wait(
         "a checkpoint of a training learner",
         lambda: (
             (s := faults.learner())
@@ -431,24 +412,24 @@ def test_learner_killed_during_checkpoint_write_resumes_from_previous(faults: Fa
         t_kill = time.time()
         if torn is not None:
             break
-        _log(f"attempt {attempt}: the kill landed just after a checkpoint write; again")
-        _wait(
+        log(f"attempt {attempt}: the kill landed just after a checkpoint write; again")
+        wait(
             "the learner back (restart policy)",
             lambda t=t_kill: faults.stack.fresh_stats("learner", t),  # type: ignore[misc]
             240,
         )
     assert torn is not None, "never killed the learner inside a checkpoint write"
     prev = _checkpoint_updates(ckpt_dir / "learner.pt")  # the previous, complete checkpoint
-    _log(
+    log(
         f"learner SIGKILLed inside a checkpoint write ({torn} left behind) at "
         f"{before.get('updates', 0):.0f} updates; learner.pt on disk holds {prev} updates"
     )
     # the restart policy brings it back (a SIGKILL from outside docker is a crash to docker)
-    post = _wait(
+    post = wait(
         "stats from the restarted learner", lambda: faults.stack.fresh_stats("learner", t_kill), 240
     )
     t_back = time.time()
-    more = _wait(
+    more = wait(
         "the restarted learner to go on training",
         lambda: s if (s := faults.learner()) and s["updates"] > post["updates"] + 2 else None,
         240,
@@ -456,8 +437,8 @@ def test_learner_killed_during_checkpoint_write_resumes_from_previous(faults: Fa
     logs = _logs(container)
     rows = (faults.run_dir / "metrics" / "learner-main.jsonl").read_text().splitlines()
     removed = json.loads(rows[-1])["scalars"].get("checkpoint_tmp_removed")
-    _log(f"metrics row: checkpoint_tmp_removed {removed}; post {post}")
-    _log(
+    log(f"metrics row: checkpoint_tmp_removed {removed}; post {post}")
+    log(
         f"restarted learner: removed {post['checkpoint_tmp_removed']:.0f} torn file(s), "
         f"starts at {post['updates']:.0f} updates, then {more['updates']:.0f}; "
         f"missing_total {more['missing_total']:.0f}"
@@ -530,9 +511,9 @@ def test_full_run_volume_gives_a_clear_error_and_no_corrupt_files(faults: Faults
                 f.write(b"\0" * (1 << 20))
         except OSError:
             pass
-    _log(f"run volume filled ({free / 2**20:.0f} MiB were free)")
+    log(f"run volume filled ({free / 2**20:.0f} MiB were free)")
     try:
-        full = _wait(
+        full = wait(
             "the learner to report the full volume (replay and checkpoint)",
             lambda: (
                 s
@@ -554,13 +535,13 @@ def test_full_run_volume_gives_a_clear_error_and_no_corrupt_files(faults: Faults
     finally:
         filler.unlink()
         t_freed = time.time()
-    _log(
+    log(
         f"full: replay_write_errors {held['replay_write_errors']:.0f}, checkpoint_errors "
         f"{held['checkpoint_errors']:.0f}, chunks waiting {held['replay_unpersisted']:.0f}; "
         f"label: {held['labels'].get('storage_error', '')!r}; checkpoint on disk loads "
         f"({updates_on_disk} updates), {len(segments)} segments with {len(on_disk)} chunks read"
     )
-    ok = _wait(
+    ok = wait(
         "the learner to write again (storage_ok, nothing waiting, a new checkpoint)",
         lambda: (
             s
@@ -597,7 +578,7 @@ def test_full_run_volume_gives_a_clear_error_and_no_corrupt_files(faults: Faults
         s = sorted(set(seqs))
         holes += (s[-1] - s[0] + 1) - len(s)
     received = sum(v for k, v in stopped_at.items() if k.startswith("chunks/"))
-    _log(
+    log(
         f"after the stop: {len(chunks)} chunks in {len(by_stream)} streams on disk, "
         f"{holes} holes in their sequence numbers; the learner had received {received:.0f}"
     )

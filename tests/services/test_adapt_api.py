@@ -2,7 +2,7 @@
 forwarded, each refusal's status (422 with the field, 409 busy, 503 missing peer, 404 unknown
 job), lost jobs from the run directory, every bound just inside and just outside, the schema
 stating them, and a schemathesis run over the two routes (never a 500, every 422 a reason,
-schema-valid data accepted)."""
+schema-valid data accepted; the harness of ``tests/services/schema.py``)."""
 
 from __future__ import annotations
 
@@ -13,10 +13,8 @@ from typing import Any
 
 import numpy as np
 import pytest
-import schemathesis
 from fastapi.testclient import TestClient
 from google.protobuf import json_format
-from hypothesis import HealthCheck, settings
 
 from proto import codec
 from proto import ursa_pb2 as pb
@@ -24,6 +22,7 @@ from proto.topics import Topics
 from services.api.app import create_app
 from services.api.state import ApiState
 from services.common.live import LiveState
+from tests.services.schema import SETTINGS, call_and_validate, openapi_schema
 from ursa.bounds import Box
 
 RUN = "test"
@@ -295,25 +294,10 @@ def _schemathesis_app() -> Any:
     return create_app(_state(["eval"], fake, None))
 
 
-def _no_500(ctx: Any, response: Any, case: Any) -> bool:
-    assert response.status_code != 500, f"500 on {case.method} {case.path}: {response.text}"
-    return True
-
-
-def _422_has_a_reason(ctx: Any, response: Any, case: Any) -> bool:
-    if response.status_code == 422:
-        detail = response.json()["detail"]
-        assert isinstance(detail, list) and detail, response.text
-        assert all(e.get("loc") and e.get("msg") for e in detail), response.text
-    return True
-
-
-SCHEMA = schemathesis.openapi.from_asgi("/openapi.json", _schemathesis_app()).include(
-    path_regex="^/adapt"
-)
+SCHEMA = openapi_schema(_schemathesis_app(), path_regex="^/adapt")
 
 
 @SCHEMA.parametrize()
-@settings(max_examples=40, deadline=None, derandomize=True, suppress_health_check=list(HealthCheck))
+@SETTINGS
 def test_openapi_property_based_adapt_routes(case: Any) -> None:
-    case.call_and_validate(additional_checks=[_no_500, _422_has_a_reason])
+    call_and_validate(case)

@@ -1,8 +1,6 @@
 """The HTTP API: every route with good and bad input on a fed state, a schemathesis run against
-the OpenAPI spec, and the app over a real Zenoh router on loopback.
-
-schemathesis is a pinned dev dependency, imported at the top: a missing package or an entry
-point renamed by an upgrade fails the module loudly, never turns into a skip."""
+the OpenAPI spec (the harness of ``tests/services/schema.py``), and the app over a real Zenoh
+router on loopback."""
 
 from __future__ import annotations
 
@@ -14,9 +12,7 @@ from typing import Any
 
 import numpy as np
 import pytest
-import schemathesis
 from fastapi.testclient import TestClient
-from hypothesis import HealthCheck, settings
 
 from proto import codec
 from proto import ursa_pb2 as pb
@@ -29,6 +25,7 @@ from services.common.config import RunConfig
 from services.common.live import LiveState
 from services.stack import running_stack, wait_for
 from tests.services._stack import snapshot_msg, stats_msg
+from tests.services.schema import SETTINGS, call_and_validate, openapi_schema
 from ursa.bounds import Box
 from ursa.config import preset
 
@@ -417,31 +414,16 @@ def _schemathesis_app() -> Any:
     return create_app(state)
 
 
-def _no_500(ctx: Any, response: Any, case: Any) -> bool:
-    """Never a 500 (a 503 only where the spec documents it: a missing peer)."""
-    assert response.status_code != 500, f"500 on {case.method} {case.path}: {response.text}"
-    return True
-
-
-def _422_has_a_reason(ctx: Any, response: Any, case: Any) -> bool:
-    """Every 422 says where and why, in FastAPI's validation-error shape."""
-    if response.status_code == 422:
-        detail = response.json()["detail"]
-        assert isinstance(detail, list) and detail, response.text
-        assert all(e.get("loc") and e.get("msg") for e in detail), response.text
-    return True
-
-
-SCHEMA = schemathesis.openapi.from_asgi("/openapi.json", _schemathesis_app())
+SCHEMA = openapi_schema(_schemathesis_app())
 
 
 @SCHEMA.parametrize()
-@settings(max_examples=40, deadline=None, derandomize=True, suppress_health_check=list(HealthCheck))
+@SETTINGS
 def test_openapi_property_based_no_server_errors(case: Any) -> None:
     """Every schemathesis check, "schema-valid data is accepted" included (the schema states
     every bound the API enforces: the skill dimension and box of the run, the damages, the
     ranges), and ours: never a 500, and a reason with every 422."""
-    case.call_and_validate(additional_checks=[_no_500, _422_has_a_reason])
+    call_and_validate(case)
 
 
 # ---- every bound: just inside is accepted, just outside is a 422 naming the field ------------
