@@ -1,4 +1,4 @@
-"""The run directory: its layout and the one durable atomic write.
+"""The run directory: its layout, the one durable atomic write and the metrics row.
 
 Every file of a run (``<runs>/<run_id>/``, written by the services or by
 :func:`ursa.eval.loading.save_serial_run`) is named here, and only here::
@@ -27,7 +27,7 @@ import os
 import tempfile
 from collections.abc import Callable
 from pathlib import Path
-from typing import BinaryIO
+from typing import Any, BinaryIO
 
 CONFIG = Path("config")
 CHECKPOINTS = Path("checkpoints")
@@ -131,6 +131,24 @@ class RunDir:
 
 TEMP_SUFFIX = ".tmp"
 """Suffix of atomic_write's temporary files (``<name>.<random>.tmp`` beside the target)."""
+
+
+def metrics_row(
+    t: float,
+    service: str,
+    sid: str,
+    scalars: dict[str, float],
+    labels: dict[str, str] | None = None,
+) -> dict[str, Any]:
+    """One line of ``metrics/<service>-<id>.jsonl`` (a service's stats row, or a serial run's):
+    ``{"t", "service", "id", "scalars", "labels"}``, ``t`` in seconds since the epoch."""
+    return {
+        "t": t,
+        "service": service,
+        "id": sid,
+        "scalars": {k: float(v) for k, v in scalars.items()},
+        "labels": dict(labels or {}),
+    }
 
 
 def atomic_write(

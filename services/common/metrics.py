@@ -27,7 +27,7 @@ import sys
 from pathlib import Path
 from typing import IO, Any, Literal, Protocol
 
-from ursa.rundir import RunDir
+from ursa.rundir import RunDir, metrics_row
 
 log = logging.getLogger(__name__)
 
@@ -74,13 +74,7 @@ class JsonlSink:
         if self._file is None:
             self.path.parent.mkdir(parents=True, exist_ok=True)
             self._file = open(self.path, "a")  # noqa: SIM115 - open for the service's life
-        row = {
-            "t": t,
-            "service": self.service,
-            "id": self.sid,
-            "scalars": scalars,
-            "labels": labels,
-        }
+        row = metrics_row(t, self.service, self.sid, scalars, labels)
         self._file.write(json.dumps(row) + "\n")
         self._file.flush()
 

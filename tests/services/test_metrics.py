@@ -139,3 +139,15 @@ def test_wandb_offline_run_holds_the_rows(tmp_path: Path) -> None:
         (30, 250, 1.5),
     ]
     assert runs and runs[0].run_group == "run-7" and runs[0].display_name == "learner-main"
+
+
+def test_jsonl_sink_writes_the_run_directorys_metrics_row(tmp_path: Path) -> None:
+    from services.common.metrics import JsonlSink
+    from ursa.rundir import RunDir, metrics_row
+
+    sink = JsonlSink(tmp_path, "learner", "main")
+    sink.write(12.5, {"updates": 3, "loss": 0.25}, {"phase": "wm"})
+    sink.close()
+    path = RunDir(tmp_path).metrics_file("learner", "main")
+    row = metrics_row(12.5, "learner", "main", {"updates": 3, "loss": 0.25}, {"phase": "wm"})
+    assert [json.loads(x) for x in path.read_text().splitlines()] == [row]

@@ -271,3 +271,17 @@ def test_no_other_module_spells_the_layout_or_writes_atomically() -> None:
         for m in re.finditer(n, f.read_text())
     ]
     assert hits == []
+
+
+def test_metrics_row_is_the_one_shape_of_a_metrics_line() -> None:
+    from ursa.rundir import metrics_row
+
+    row = metrics_row(12.5, "learner", "main", {"updates": 3, "loss": 0.25}, {"phase": "wm"})
+    assert row == {
+        "t": 12.5,
+        "service": "learner",
+        "id": "main",
+        "scalars": {"updates": 3.0, "loss": 0.25},
+        "labels": {"phase": "wm"},
+    }
+    assert metrics_row(1.0, "collector", "serial", {})["labels"] == {}

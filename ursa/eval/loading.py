@@ -40,7 +40,7 @@ from ursa.learner_config import LearnerConfig
 from ursa.plain import from_plain, to_plain
 from ursa.policy import Policy
 from ursa.repertoire import Repertoire
-from ursa.rundir import RunDir, atomic_write
+from ursa.rundir import RunDir, atomic_write, metrics_row
 from ursa.serial import SerialConfig, SerialLoop
 
 #: Resolved configs tried in this order (the learner's holds the learner config of the checkpoint).
@@ -330,7 +330,7 @@ class SerialRecorder:
         tap.reward_sum, tap.reward_steps = 0.0, 0
         rescues = int(getattr(tap.inner, "rescues", 0))
         self.rows.append(
-            _row(
+            metrics_row(
                 now,
                 "collector",
                 "serial",
@@ -347,7 +347,7 @@ class SerialRecorder:
         rep = loop.repertoire
         if rep is not None and len(rep) > 1:
             self.rows.append(
-                _row(
+                metrics_row(
                     now,
                     "repertoire",
                     "serial",
@@ -368,19 +368,9 @@ class SerialRecorder:
         }
         for m in loop.history[self._history :][-1:]:
             scalars.update({k: v for k, v in m.items() if np.isfinite(v)})
-        self.rows.append(_row(now, "learner", "serial", scalars))
+        self.rows.append(metrics_row(now, "learner", "serial", scalars))
         self._steps, self._unsafe = loop.env_steps, loop.unsafe_steps
         self._history = len(loop.history)
-
-
-def _row(t: float, service: str, sid: str, scalars: dict[str, Any]) -> dict[str, Any]:
-    return {
-        "t": t,
-        "service": service,
-        "id": sid,
-        "scalars": {k: float(v) for k, v in scalars.items()},
-        "labels": {},
-    }
 
 
 def save_serial_run(
@@ -405,12 +395,12 @@ def save_serial_run(
     if loop.repertoire is not None:
         loop.repertoire.save(run.archive)
     if recorder is not None and recorder.rows:
-        by_file: dict[str, list[dict[str, Any]]] = {}
+        by_file: dict[Path, list[dict[str, Any]]] = {}
         for row in recorder.rows:
-            by_file.setdefault(f"{row['service']}-{row['id']}.jsonl", []).append(row)
-        for name, rows in by_file.items():
+            by_file.setdefault(run.metrics_file(row["service"], row["id"]), []).append(row)
+        for path, rows in by_file.items():
             text = "".join(json.dumps(r) + "\n" for r in rows)
-            atomic_write(run.metrics / name, text)
+            atomic_write(path, text)
     return run.root
 
 
