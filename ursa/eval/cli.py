@@ -112,10 +112,11 @@ class DamageArgs(RolloutArgs):
     """baseline runs (daydreamer)"""
     scenarios: Annotated[Scenarios, _arg("all six; 'intact' for none", "S [S ...]")] = None
     """damage scenarios"""
-    skills: Annotated[int | None, _arg("the run's N_z", "N")] = None
-    """N_z most distinct skills tried per scenario"""
-    trials: int = 1
-    """executions of a baseline policy"""
+    skills: Annotated[int | None, _arg("the first run's N_z", "N")] = None
+    """K: selection trials per scenario for every method (URSA: its K most distinct skills; a
+    baseline: K executions of its policy)"""
+    fresh: int = 3
+    """fresh trials of the selected skill (or policy) whose mean return is the score"""
     rescue: bool = False
     """keep the env's rescue on"""
 
@@ -274,7 +275,7 @@ def cmd_damage(a: DamageArgs) -> dict[str, Any]:
         None if a.scenarios is None else list(a.scenarios),
         a.skills,
         a.steps,
-        a.trials,
+        a.fresh,
         a.rescue,
         a.seed,
         a.explore,

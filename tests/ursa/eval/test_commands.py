@@ -504,15 +504,21 @@ def test_a1_damage(a1_runs: dict[str, Path], tmp_path: Path) -> None:
             assert st["runs"] == n_runs and math.isfinite(st["median"])
             assert st["min"] <= st["median"] <= st["max"]
     reps = {p.name: load_run(p).require_repertoire() for p in (a1_runs["ursa"], a1_runs["vel"])}
+    assert s["fresh_trials"] == 3
     for r in s["runs"]:
-        assert all(math.isfinite(x) for x in r["returns"])
+        assert all(math.isfinite(x) for x in [*r["returns"], *r["fresh_returns"]])
+        # one protocol for both: K = 2 selection trials, the score is the mean of 3 fresh
+        # trials of the selected candidate (never the selection trials' best)
+        assert len(r["returns"]) == 2 and len(r["fresh_returns"]) == 3
+        assert r["score"] == pytest.approx(np.mean(r["fresh_returns"]), rel=1e-12)
+        assert not set(r["fresh_returns"]) & set(r["returns"])  # other action noise
         if r["label"] == "ursa":
-            # the best skill is the one whose return is the score, and it is in the archive
-            best = int(np.argmax(r["returns"]))
-            assert len(r["returns"]) == 2 and r["score"] == r["returns"][best]
+            # the selected skill is in the archive
             np.testing.assert_allclose(
                 r["best_skill"], reps[r["run"]].get(np.array([r["best_skill_id"]]))[0], rtol=1e-6
             )
+        else:
+            assert r["best_skill_id"] == -1 and r["best_skill"] == []
     assert len(_csv(out / "damage.csv")) == 18
     # the same skills and seed, intact: each frozen joint changes every skill's return, and a
     # scenario evaluated twice gives the same returns (only the damage differs between them)

@@ -6,6 +6,7 @@ from __future__ import annotations
 import dataclasses
 import json
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -225,3 +226,22 @@ def test_target_grid_and_serpentine() -> None:
 def test_jsonable_handles_numpy_and_nan() -> None:
     got = jsonable({"a": np.float32(1.5), "b": np.arange(2), "c": float("nan"), 3: (np.int64(2),)})
     assert json.loads(json.dumps(got)) == {"a": 1.5, "b": [0, 1], "c": None, "3": [2]}
+
+
+def test_damage_runs_must_share_the_task_and_reward() -> None:
+    from types import SimpleNamespace
+
+    from ursa.eval.damage import check_same_task
+
+    def run(name: str, **a1: Any) -> Any:
+        cfg = preset("small", "a1")
+        return SimpleNamespace(
+            name=name, config=dataclasses.replace(cfg, a1=dataclasses.replace(cfg.a1, **a1))
+        )
+
+    # what an evaluation sets itself may differ; the task, reward and control may not
+    check_same_task([run("u"), run("d", rescue=False, damage="front_hip", frozen_joints=(4,))])
+    with pytest.raises(ValueError, match="task"):
+        check_same_task([run("u"), run("d", task="posture")])
+    with pytest.raises(ValueError, match="target_speed"):
+        check_same_task([run("u"), run("v"), run("d", target_speed=0.5)])
