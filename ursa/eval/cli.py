@@ -131,9 +131,16 @@ class VelocityArgs(RolloutArgs):
     grid: int = 7
     """targets per axis"""
     margin: float = 0.0
-    """widen the repertoire's bounding box by this fraction on each side"""
-    quantile: float = 0.0
-    """box from the q and 1-q quantiles of the skills (0: min and max)"""
+    """widen the grid's box by this fraction on each side"""
+    quantile: float = 0.1
+    """the grid spans the q to 1-q quantiles of its points (0: min and max)"""
+    grid_from: Literal["achieved", "repertoire"] = "achieved"
+    """the grid's points: the mean features of the N_z most distinct skills, executed first
+    (achieved), or the repertoire's per-step entries (repertoire)"""
+    skills: Annotated[int | None, _arg("the run's N_z", "N")] = None
+    """distinct skills executed for the grid (grid_from achieved)"""
+    any_task: bool = False
+    """measure an A1 run of another task than posture (Figure 6 is §5.3's posture task)"""
     settle: Annotated[int | None, _arg("the scoring rule's, a fifth of the steps", "S")] = None
     """first steps of each target executed but not measured"""
 
@@ -300,7 +307,18 @@ def cmd_velocity(a: VelocityArgs) -> dict[str, Any]:
 
     run = load_run(a.run, seed=a.seed)
     res = run_velocity(
-        run, a.grid, a.steps, a.settle, a.margin, a.seed, a.explore, not a.no_progress, a.quantile
+        run,
+        a.grid,
+        a.steps,
+        a.settle,
+        a.margin,
+        a.seed,
+        a.explore,
+        not a.no_progress,
+        a.quantile,
+        a.grid_from,
+        a.skills,
+        a.any_task,
     )
     out = default_out(a.run, a.out)
     s = write_velocity(res, out)
@@ -382,8 +400,9 @@ def cmd_all(a: AllArgs) -> dict[str, Any]:
         if run.uses_skills and run.repertoire is not None and len(run.repertoire) > 1:
             todo.append(DiversityArgs(run=a.run, baseline=a.baseline, skills=a.skills, **rollout))
             cfg = run.config
-            if not cfg.learned_feature and cfg.skill_dim == 2:
-                todo.append(VelocityArgs(run=a.run, **rollout))
+            posture = cfg.env != "a1" or cfg.a1.task == "posture"  # Figure 6's task
+            if not cfg.learned_feature and cfg.skill_dim == 2 and posture:
+                todo.append(VelocityArgs(run=a.run, skills=a.skills, **rollout))
             if cfg.env == "a1" and a.baseline:
                 todo.append(
                     DamageArgs(run=(a.run,), baseline=(a.baseline,), skills=a.skills, **rollout)

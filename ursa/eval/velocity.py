@@ -1,25 +1,38 @@
 """``ursa eval velocity``: tracking error over the reachable skill space (paper Figure 6).
 
 For a run with a provided 2-D feature function (``--core.feature velocity`` on the A1, mode
-``ursa-supervised``: φ = (forward velocity, yaw rate)), a grid of targets covers the bounding box
-of the repertoire (the reachable space URSA discovered). The policy executes each target as its
-skill for T steps (targets visited in a serpentine order so that neighbours follow each other,
-without resets), and the tracking error of each dimension is |mean φ over the steps − target|
-(the skill's definition: the expected feature). The per-step error, mean over the steps of
-|φ_t − target|, is reported too. Any provided 2-D feature works the same way (the point env's
-position: position tracking).
+``ursa-supervised``: φ = (forward velocity, yaw rate)), a grid of targets covers what the
+run's skills reach: by default the policy first executes the N_z most distinct skills of the
+repertoire for T steps each, and the grid spans the q to 1 − q quantiles (q = 0.1) of their
+**mean** features. The repertoire itself holds per-step features, whose extremes (a stumble, a
+spin) no skill holds on average for T steps, so a grid over their bounding box (``grid_from
+repertoire``, ``quantile`` 0) asks for targets no skill can track. The policy then executes
+each target as its skill for T steps (targets visited in a serpentine order so that neighbours
+follow each other, without resets), and the tracking error of each dimension is
+|mean φ over the steps − target| (the skill's definition: the expected feature). The per-step
+error, mean over the steps of |φ_t − target|, is reported too. On the A1 the figure is the
+paper's §5.3 experiment, the posture task: a run of another task is refused unless
+``any_task``. Any provided 2-D feature works the same way (the point env's position: position
+tracking).
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal
 
 import numpy as np
 
 from ursa import scoring
-from ursa.eval.common import feature_names, pyplot, save_figure, write_csv, write_json
+from ursa.eval.common import (
+    distinct_skills,
+    feature_names,
+    pyplot,
+    save_figure,
+    write_csv,
+    write_json,
+)
 from ursa.eval.loading import LoadedRun
 from ursa.eval.rollout import Rollouts, execute_skills
 
@@ -41,6 +54,14 @@ class VelocityResult:
     names: list[str]
     margin: float
     quantile: float = 0.0
+    grid_from: str = "achieved"
+    grid_points: np.ndarray | None = None
+    """(K, 2) the points the grid spans: the skills' mean features (``achieved``) or the
+    repertoire's entries (``repertoire``)."""
+
+
+QUANTILE = 0.1
+"""Default q of the target grid: it spans the q to 1 − q quantiles of its points."""
 
 
 def target_grid(
@@ -71,7 +92,10 @@ def run_velocity(
     seed: int = 0,
     explore: bool = scoring.EXPLORE,
     progress: bool = True,
-    quantile: float = 0.0,
+    quantile: float = QUANTILE,
+    grid_from: Literal["achieved", "repertoire"] = "achieved",
+    n_skills: int | None = None,
+    any_task: bool = False,
 ) -> VelocityResult:
     cfg = run.config
     if cfg.learned_feature or not run.uses_skills or cfg.skill_dim != 2:
@@ -80,10 +104,40 @@ def run_velocity(
             f"(--core.feature velocity, mode ursa-supervised); this run has feature "
             f"{cfg.feature!r}, mode {cfg.learner.mode!r}"
         )
+    if cfg.env == "a1" and cfg.a1.task != "posture" and not any_task:
+        raise ValueError(
+            f"Figure 6 is the posture task's experiment (§5.3); this run trained the "
+            f"{cfg.a1.task!r} task (--any-task measures it anyway)"
+        )
     policy = run.require_policy()
     rep = run.require_repertoire()
     t = cfg.collector.skill_period if steps is None else steps
-    axes = target_grid(rep.skills, grid, margin, quantile)
+    if grid_from == "achieved":
+        n = cfg.repertoire.n_z if n_skills is None else n_skills
+        skills, _ = distinct_skills(run, n)
+        env = run.env(seed=seed)
+        try:
+            probe = execute_skills(
+                policy,
+                env,
+                skills,
+                t,
+                record=(cfg.feature,),
+                phi_key=cfg.feature,
+                settle=settle,
+                explore=explore,
+                seed=seed,
+                progress=progress,
+                desc="skills for the grid",
+            )
+        finally:
+            env.close()
+        points = np.asarray(probe.means[cfg.feature], np.float64)
+    elif grid_from == "repertoire":
+        points = np.asarray(rep.skills, np.float64)
+    else:
+        raise ValueError(f"grid_from must be achieved or repertoire, not {grid_from!r}")
+    axes = target_grid(points, grid, margin, quantile)
     order = serpentine(grid, grid)
     targets = np.array([[axes[0][i], axes[1][j]] for i, j in order])
     env = run.env(seed=seed)
@@ -113,7 +167,18 @@ def run_velocity(
         err[i, j] = np.abs(mean[k] - targets[k])
         serr[i, j] = r.abs_error[cfg.feature][k]
     return VelocityResult(
-        run, axes, tg, ach, err, serr, r, feature_names(cfg.feature, 2), margin, quantile
+        run,
+        axes,
+        tg,
+        ach,
+        err,
+        serr,
+        r,
+        feature_names(cfg.feature, 2),
+        margin,
+        quantile,
+        grid_from,
+        points,
     )
 
 
@@ -122,9 +187,12 @@ def write_velocity(res: VelocityResult, out: Path) -> dict[str, Any]:
     names = res.names
     summary: dict[str, Any] = {
         "figure": "Figure 6: tracking error of each feature dimension over a grid of targets "
-        "covering the repertoire's bounding box",
+        "spanning the quantiles of the skills' mean features",
         "run": res.run.name,
         "feature": res.run.config.feature,
+        "task": res.run.config.a1.task if res.run.config.env == "a1" else None,
+        "grid_from": res.grid_from,
+        "grid_points": res.grid_points,
         "dims": names,
         "grid": len(res.axes[0]),
         "steps": res.rollouts.steps,

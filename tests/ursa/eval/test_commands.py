@@ -250,11 +250,42 @@ def test_velocity_on_point_positions(point_run: Path, tmp_path: Path) -> None:
     _png(out / "velocity.png")
     assert np.array(s["error"]).shape == (3, 3, 2)
     _check_velocity(out, s)
-    rep = load_run(point_run).require_repertoire().skills
-    np.testing.assert_allclose(
-        [s["axes"][0][0], s["axes"][0][-1]], [rep[:, 0].min(), rep[:, 0].max()]
-    )
+    # the grid spans the 0.1 and 0.9 quantiles of the skills' mean positions, executed first
+    # (the N_z most distinct skills, T steps each), not the repertoire's per-step extremes
+    pts = np.array(s["grid_points"])
+    rep = load_run(point_run).require_repertoire()
+    assert s["grid_from"] == "achieved" and s["quantile"] == 0.1
+    assert len(pts) == min(rep.config.n_z, len(rep)) and s["task"] is None
+    for k in (0, 1):
+        np.testing.assert_allclose(
+            [s["axes"][k][0], s["axes"][k][-1]], np.quantile(pts[:, k], [0.1, 0.9]), rtol=1e-9
+        )
     assert len(_csv(out / "velocity.csv")) == 9
+    # the old box: the repertoire's entries, min to max
+    assert (
+        main(
+            [
+                "velocity",
+                str(point_run),
+                "--out",
+                str(out),
+                "--grid",
+                "3",
+                "--steps",
+                "20",
+                "--grid-from",
+                "repertoire",
+                "--quantile",
+                "0",
+                *QUIET,
+            ]
+        )
+        == 0
+    )
+    s = _json(out / "velocity.json")
+    np.testing.assert_allclose(
+        [s["axes"][0][0], s["axes"][0][-1]], [rep.skills[:, 0].min(), rep.skills[:, 0].max()]
+    )
 
 
 def test_curves_point(point_run: Path, tmp_path: Path) -> None:
@@ -566,14 +597,19 @@ def test_a1_velocity_and_curves(a1_runs: dict[str, Path], tmp_path: Path) -> Non
                 "3",
                 "--steps",
                 "25",
+                "--skills",
+                "4",
+                "--any-task",  # a forward-task run: Figure 6 proper is the posture task's
                 *QUIET,
             ]
         )
         == 0
     )
+    assert main(["velocity", str(a1_runs["vel"]), "--out", str(out), *QUIET]) == 1
     s = _json(out / "velocity.json")
     _png(out / "velocity.png")
     assert s["dims"] == ["forward velocity (m/s)", "yaw rate (rad/s)"]
+    assert s["task"] == "forward" and len(s["grid_points"]) == 4
     assert np.array(s["error"]).shape == (3, 3, 2)
     _check_velocity(out, s)
     # the learned-feature run has no velocity skills
