@@ -112,26 +112,30 @@ def run_velocity(
     policy = run.require_policy()
     rep = run.require_repertoire()
     t = cfg.collector.skill_period if steps is None else steps
-    if grid_from == "achieved":
-        n = cfg.repertoire.n_z if n_skills is None else n_skills
-        skills, _ = distinct_skills(run, n)
+
+    def execute(skills: np.ndarray, desc: str) -> Rollouts:
         env = run.env(seed=seed)
         try:
-            probe = execute_skills(
+            return execute_skills(
                 policy,
                 env,
                 skills,
                 t,
                 record=(cfg.feature,),
                 phi_key=cfg.feature,
+                tracking=True,
                 settle=settle,
                 explore=explore,
                 seed=seed,
                 progress=progress,
-                desc="skills for the grid",
+                desc=desc,
             )
         finally:
             env.close()
+
+    if grid_from == "achieved":
+        n = cfg.repertoire.n_z if n_skills is None else n_skills
+        probe = execute(distinct_skills(run, n)[0], "skills for the grid")
         points = np.asarray(probe.means[cfg.feature], np.float64)
     elif grid_from == "repertoire":
         points = np.asarray(rep.skills, np.float64)
@@ -140,24 +144,7 @@ def run_velocity(
     axes = target_grid(points, grid, margin, quantile)
     order = serpentine(grid, grid)
     targets = np.array([[axes[0][i], axes[1][j]] for i, j in order])
-    env = run.env(seed=seed)
-    try:
-        r = execute_skills(
-            policy,
-            env,
-            targets,
-            t,
-            record=(cfg.feature,),
-            phi_key=cfg.feature,
-            tracking=True,
-            settle=settle,
-            explore=explore,
-            seed=seed,
-            progress=progress,
-            desc="velocity targets",
-        )
-    finally:
-        env.close()
+    r = execute(targets, "velocity targets")
     shape = (grid, grid, 2)
     tg, ach, err, serr = (np.zeros(shape) for _ in range(4))
     mean = r.means[cfg.feature]
