@@ -33,11 +33,20 @@ def pytest_collection_modifyitems(
     learning tests."""
     if config.option.collectonly:
         return
-    users = ("point_runs", "a1_cpu_run")
-    if any(u in getattr(item, "fixturenames", ()) for item in items for u in users):
-        from tests.trained import Training
 
-        _training["job"] = Training(_root(config))
+    def uses(fixture: str) -> bool:
+        return any(fixture in getattr(item, "fixturenames", ()) for item in items)
+
+    if uses("point_runs") or uses("a1_cpu_run"):
+        from tests.trained import A1_RUN, RUNS, Training
+
+        names = (*(RUNS if uses("point_runs") else ()), *((A1_RUN,) if uses("a1_cpu_run") else ()))
+        _training["job"] = Training(_root(config), names)
+    # the A1 run trains last in the background: its test goes last, so that every other test
+    # runs while it trains
+    a1 = [item for item in items if "a1_cpu_run" in getattr(item, "fixturenames", ())]
+    if a1:
+        items[:] = [item for item in items if item not in a1] + a1
 
 
 def pytest_sessionfinish(session: pytest.Session, exitstatus: int) -> None:
@@ -73,10 +82,14 @@ def point_runs(pytestconfig: pytest.Config) -> dict[str, Any]:
 
 
 @pytest.fixture(scope="session")
-def a1_cpu_run(point_runs: dict[str, Any]) -> Path:
-    """The A1 run of the CPU recipe (:data:`tests.trained.A1_RUN`), trained beside the point
-    runs."""
-    from tests.trained import A1_RUN
+def a1_cpu_run(pytestconfig: pytest.Config) -> Path:
+    """The A1 run of the CPU recipe (:data:`tests.trained.A1_RUN`), trained in the background
+    after the point runs (or reused from ``URSA_TRAINED_POINT_DIR``)."""
+    from tests.trained import A1_RUN, Training
 
-    path: Path = point_runs["runs"][A1_RUN]
+    job = _training.get("job") or Training(_root(pytestconfig))
+    _training["job"] = job
+    out = job.result((A1_RUN,))
+    print(f"\nA1 run in {job.root}: {out['seconds']} s (cached: {out['cached']})")
+    path: Path = out["runs"][A1_RUN]
     return path

@@ -8,7 +8,9 @@ evaluator service read like runs of the services: URSA (``ursa-supervised``, φ 
 each of :data:`SEEDS`, and one DayDreamer run (reward only) with the same recipe and budget.
 Beside them, :data:`A1_RUN`: the A1's CPU recipe (preset ``cpu``, URSA with the learned φ)
 trained the same way for ``TRAIN_STEPS["cpu"]`` env steps (issue 20's A1 learning test).
-They train once per test session, two processes at once, the A1 run first (the longest).
+They train once per test session, two processes at once: the point runs first, which many
+tests wait for, then the A1 run, which only its test waits for (that test runs last, so the A1
+run trains beside the tests that use the point runs).
 
 ``URSA_TRAINED_POINT_DIR``: keep the runs there and reuse them while their recipe is unchanged
 (a ``recipe.json`` beside them says which recipe trained them).
@@ -71,7 +73,7 @@ def run_budget(name: str) -> tuple[int, int]:
     return PREFILL[p], TRAIN_STEPS[p]
 
 
-ALL_RUNS = (A1_RUN, *RUNS)
+ALL_RUNS = (*RUNS, A1_RUN)
 """Every run, in the order they start."""
 
 
@@ -108,11 +110,12 @@ def _train(args: tuple[str, str]) -> tuple[str, float]:
 
 
 class Training:
-    """The runs of :data:`RUNS` under ``root``, training in the background (two processes at a
-    lowered priority, so that the tests collected beside them keep the CPU they need) unless
-    ``root`` already holds runs of the same recipe; :meth:`result` waits for them."""
+    """The runs ``names`` (default: all of :data:`ALL_RUNS`) under ``root``, training in the
+    background (two processes at a lowered priority, so that the tests collected beside them
+    keep the CPU they need) unless ``root`` already holds runs of the same recipe;
+    :meth:`result` waits for the ones a test needs (starting any not started yet)."""
 
-    def __init__(self, root: Path) -> None:
+    def __init__(self, root: Path, names: tuple[str, ...] = ALL_RUNS) -> None:
         self.root = root
         root.mkdir(parents=True, exist_ok=True)
         self.stamp = root / "recipe.json"
@@ -120,34 +123,47 @@ class Training:
         self.started = time.perf_counter()
         self._ex: ProcessPoolExecutor | None = None
         self._jobs: dict[str, Any] = {}
+        self._seconds: dict[str, float] = {}
         if self.cached():
             return
         workers = min(len(ALL_RUNS), max(1, os.cpu_count() or 1))
         ctx = multiprocessing.get_context("spawn")
         self._ex = ProcessPoolExecutor(workers, mp_context=ctx, initializer=_lower_priority)
-        # the slowest runs first (A1, then URSA), the cheaper daydreamer run last
-        self._jobs = {name: self._ex.submit(_train, (str(root), name)) for name in ALL_RUNS}
+        # the point runs first (URSA, then the cheaper daydreamer run), the A1 run last
+        for name in ALL_RUNS:
+            if name in names:
+                self._submit(name)
+
+    def _submit(self, name: str) -> None:
+        assert self._ex is not None
+        self._jobs[name] = self._ex.submit(_train, (str(self.root), name))
 
     def cached(self) -> bool:
         return self.stamp.exists() and json.loads(self.stamp.read_text()).get("recipe") == self.want
 
-    def result(self) -> dict[str, Any]:
-        """Run dirs (plus ``ursa``: the first seed's), seconds per run and whether cached."""
+    def result(self, names: tuple[str, ...] = tuple(RUNS)) -> dict[str, Any]:
+        """Run dirs of every run (plus ``ursa``: the first seed's), seconds per run and whether
+        cached, once the runs ``names`` are trained (default: the point runs)."""
         runs: dict[str, Path] = {name: self.root / name for name in ALL_RUNS}
         runs["ursa"] = runs[f"ursa-s{SEEDS[0]}"]
-        if self._ex is None:
+        if self._ex is None and not self._jobs:
             info = json.loads(self.stamp.read_text())
             return {"runs": runs, "seconds": info["seconds"], "cached": True}
-        try:
-            seconds = {name: job.result()[1] for name, job in self._jobs.items()}
-        finally:
+        for name in names:
+            if name not in self._jobs:  # not collected at the start: train it now
+                self._submit(name)
+        for name in names:
+            if name not in self._seconds:
+                self._seconds[name] = self._jobs[name].result()[1]
+        seconds = dict(self._seconds)
+        if f"ursa-s{SEEDS[0]}" in seconds:
+            seconds["ursa"] = seconds[f"ursa-s{SEEDS[0]}"]
+        seconds["wall"] = time.perf_counter() - self.started
+        if all(name in self._seconds for name in ALL_RUNS) and self._ex is not None:
             self._ex.shutdown(wait=True, cancel_futures=True)
             self._ex = None
-        seconds["ursa"] = seconds[f"ursa-s{SEEDS[0]}"]
-        seconds["wall"] = time.perf_counter() - self.started
-        self.stamp.write_text(json.dumps({"recipe": self.want, "seconds": seconds}))
-        self._cached = {"runs": runs, "seconds": seconds, "cached": False}
-        return self._cached
+            self.stamp.write_text(json.dumps({"recipe": self.want, "seconds": seconds}))
+        return {"runs": runs, "seconds": seconds, "cached": False}
 
     def cancel(self) -> None:
         """Stop trainings nobody waited for (the session ended first): their workers are
