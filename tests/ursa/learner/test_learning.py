@@ -225,12 +225,14 @@ def _check_multipliers(ursa_run: dict[str, Any]) -> None:
     l2_in, l2_far = float(lam2[inside].mean()), float(lam2[far].mean())
     print(f"\nseed {seed}: λ2 inside the disc {l2_in:.3f}, far from it {l2_far:.3f}")
     assert l2_in > 2.0 * l2_far and l2_in > l2_far + 0.05, (seed, l2_in, l2_far)
-    # λ1 predicts whether the skill constraint is violated from (s, z): it has fallen below its
-    # initial 0.5 at the states the agent visits, and it is higher for the skills far from the
-    # state (the farthest quarter of (state, KDE skill) pairs in δ's metric) than for the
-    # nearest quarter. The trend is weak: λ1 learns slowly and at 3000 updates still follows
-    # the falling rate of imagined violations (0.99 at 500 updates, 0.35 at 3000; docs/NOTES.md)
-    # more than its dependence on (s, z).
+    # λ1 predicts whether the skill constraint is violated from (s, z): where it holds (the
+    # nearest quarter of (state, KDE skill) pairs in δ's metric, along the states the agent
+    # visits) it has fallen below its initial 0.5, and it is higher for the farthest quarter.
+    # The trend is weak: λ1 learns slowly and at 3000 updates still follows the falling rate of
+    # imagined violations (0.99 at 500 updates, 0.35 at 3000; docs/NOTES.md) more than its
+    # dependence on (s, z). Its mean over all pairs is no claim: most random pairs violate
+    # the constraint, so a well-trained λ1 is high there (0.508 on a distributed run of
+    # 2026-12-03, near 0.330, far 0.631).
     feat, pos = _states(ursa_run)
     lam1, _ = learner.multipliers(feat, kde_skills[: len(pos)])
     whiten = kde.whitening_matrix(kde.regularize_cov(ursa_run["cov"]))
@@ -238,5 +240,5 @@ def _check_multipliers(ursa_run: dict[str, Any]) -> None:
     near_q, far_q = np.quantile(dist, [0.25, 0.75])
     l1_near, l1_far = float(lam1[dist <= near_q].mean()), float(lam1[dist >= far_q].mean())
     print(f"seed {seed}: λ1 {lam1.mean():.3f}; near skills {l1_near:.3f}, far ones {l1_far:.3f}")
-    assert lam1.mean() < 0.5, (seed, lam1.mean())
+    assert l1_near < 0.5, (seed, l1_near)
     assert l1_far > l1_near + 0.02, (seed, l1_near, l1_far)
