@@ -83,6 +83,10 @@ class LearnerConfig:
     imag_starts: int = 0
     """Start states of the imagination per update, drawn without replacement from the B·T
     posterior states; 0 uses all of them (DreamerV3)."""
+    replay_unsafe: float = 0.0
+    """Fraction of the B replayed sequences that each hold an unsafe step (``Replay.sample``'s
+    ``unsafe_fraction``): unsafe states grow rare once the policy is safe, and a world model
+    that sees them only at their share of the data forgets them (docs/learner.md)."""
     train_ratio: float = 32.0
     """Replayed steps per collected env step (B·T per update); drives the serial loop and the
     learner service."""
@@ -179,6 +183,8 @@ class LearnerConfig:
             raise ValueError(f"unknown phi_metric {self.phi_metric!r}")
         if not 0.0 < self.delta_scale <= 1.0:
             raise ValueError("delta_scale must lie in (0, 1]")
+        if not 0.0 <= self.replay_unsafe <= 1.0:
+            raise ValueError("replay_unsafe must lie in [0, 1]")
 
     @property
     def gamma_cost(self) -> float:

@@ -156,32 +156,81 @@ class Replay:
             s.start += k
             self._size -= k
 
-    def sample(self, batch: int, seq_len: int, rng: np.random.Generator) -> dict[str, np.ndarray]:
-        """``batch`` sequences of ``seq_len`` consecutive records of one stream each, uniformly
-        over all valid start records: dict of arrays (B, T, ...) plus ``is_first`` (B, T)."""
+    def sample(
+        self,
+        batch: int,
+        seq_len: int,
+        rng: np.random.Generator,
+        unsafe_fraction: float = 0.0,
+    ) -> dict[str, np.ndarray]:
+        """``batch`` sequences of ``seq_len`` consecutive records of one stream each: dict of
+        arrays (B, T, ...) plus ``is_first`` (B, T).
+
+        The first ``round(unsafe_fraction · batch)`` sequences each hold an unsafe record
+        (``safe`` false), drawn uniformly over the unsafe records and then over the windows
+        that contain it; the rest (all of them without an unsafe record in any full window)
+        are uniform over all valid start records.
+        """
+        if not 0.0 <= unsafe_fraction <= 1.0:
+            raise ValueError(f"unsafe_fraction must lie in [0, 1], got {unsafe_fraction}")
         sids = list(self._streams)
         valid = np.array([max(0, len(self._streams[k]) - seq_len + 1) for k in sids], np.int64)
         total = int(valid.sum())
         if total == 0:
             raise ValueError(f"no stream holds {seq_len} records yet")
         assert self._schema is not None
-        picks = rng.integers(0, total, size=batch)
+        starts: list[tuple[int, int]] = self._unsafe_starts(
+            sids, valid, seq_len, round(unsafe_fraction * batch), rng
+        )
+        picks = rng.integers(0, total, size=batch - len(starts))
         cum = np.cumsum(valid)
         which = np.searchsorted(cum, picks, side="right")
         offs = picks - (cum[which] - valid[which])
+        starts += [(int(w), int(o)) for w, o in zip(which, offs, strict=True)]
         out = {
             k: np.zeros((batch, seq_len, *shape), dtype)
             for k, (shape, dtype) in self._schema.items()
         }
         first = np.zeros((batch, seq_len), bool)
-        for b in range(batch):
-            s = self._streams[sids[which[b]]]
-            sl = slice(s.start + int(offs[b]), s.start + int(offs[b]) + seq_len)
+        for b, (w, off) in enumerate(starts):
+            s = self._streams[sids[w]]
+            sl = slice(s.start + off, s.start + off + seq_len)
             for k in out:
                 out[k][b] = s.data[k][sl]
             first[b] = s.is_first[sl]
         first[:, 0] = True
         out["is_first"] = first
+        return out
+
+    def _unsafe_starts(
+        self,
+        sids: list[str],
+        valid: np.ndarray,
+        seq_len: int,
+        n: int,
+        rng: np.random.Generator,
+    ) -> list[tuple[int, int]]:
+        """(stream row, start offset) of n windows around uniformly drawn unsafe records;
+        fewer (none) when no stream of ``seq_len`` records holds one."""
+        if n <= 0 or "safe" not in (self._schema or {}):
+            return []
+        unsafe: list[np.ndarray] = [
+            np.flatnonzero(~s.data["safe"][s.start : s.end].astype(bool))
+            if v > 0
+            else np.zeros(0, np.int64)
+            for s, v in zip((self._streams[k] for k in sids), valid, strict=True)
+        ]
+        counts = np.array([len(u) for u in unsafe], np.int64)
+        if counts.sum() == 0:
+            return []
+        picks = rng.integers(0, int(counts.sum()), size=n)
+        cum = np.cumsum(counts)
+        which = np.searchsorted(cum, picks, side="right")
+        out = []
+        for w, p in zip(which, picks - (cum[which] - counts[which]), strict=True):
+            i = int(unsafe[w][p])
+            lo, hi = max(0, i - seq_len + 1), min(i, int(valid[w]) - 1)
+            out.append((int(w), int(rng.integers(lo, hi + 1))))
         return out
 
     # --- persistence ---------------------------------------------------------------------------

@@ -220,7 +220,7 @@ class SerialLoop:
                 break
             if self._snapshot is None or self.learner.updates % c.snapshot_every == 0:
                 self._snapshot = self.snapshot()
-            batch = self.replay.sample(lc.batch_size, lc.seq_len, self.rng)
+            batch = self.replay.sample(lc.batch_size, lc.seq_len, self.rng, lc.replay_unsafe)
             metrics = self.learner.train_step(batch, self._snapshot)
             metrics["env_steps"] = float(self.env_steps)
             self.history.append(metrics)

@@ -418,7 +418,7 @@ class LearnerService:
             return False
         t0 = time.perf_counter()
         with self._replay_lock:
-            batch = self.replay.sample(c.batch_size, c.seq_len, self.rng)
+            batch = self.replay.sample(c.batch_size, c.seq_len, self.rng, c.replay_unsafe)
         before = self.learner.vae_version
         metrics = self.learner.train_step(batch, snap)
         if self._pace_base is None:

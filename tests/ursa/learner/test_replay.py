@@ -128,3 +128,48 @@ def test_rejects_inconsistent_chunks() -> None:
     ragged["reward"] = ragged["reward"][:3]
     with pytest.raises(ValueError):
         rep.add(0, ragged, 5)
+
+
+def _with_unsafe(stream: int, first: int, n: int, unsafe: list[int]) -> dict[str, np.ndarray]:
+    c = _chunk(stream, first, n)
+    c["safe"][unsafe] = False
+    c["cost"][unsafe] = 1.0
+    return c
+
+
+def test_unsafe_fraction_puts_an_unsafe_step_in_that_many_sequences() -> None:
+    rep = Replay(10_000)
+    rep.add(0, _with_unsafe(0, 0, 500, [7, 300]), first_step=0)  # 2 of 1000 records unsafe
+    rep.add(1, _chunk(1, 0, 500), first_step=0)
+    rng = np.random.default_rng(0)
+    held, hits = [], {7: 0, 300: 0}
+    for _ in range(200):
+        b = rep.sample(16, 20, rng, unsafe_fraction=0.25)
+        unsafe = ~b["safe"]
+        held.append(unsafe.any(1))
+        # the drawn windows: contiguous steps of stream 0 that contain step 7 or 300
+        for row in range(4):
+            assert b["obs"][row, 0, 0] == 0
+            steps = b["obs"][row, :, 1]
+            assert np.array_equal(steps, steps[0] + np.arange(20))
+            for i in hits:
+                hits[i] += int(i in steps)
+    frac = np.stack(held)  # (200, 16)
+    assert frac[:, :4].all()  # the first round(0.25 · 16) hold an unsafe step, always
+    assert frac[:, 4:].mean() < 0.1  # uniform windows: ~39 of 962 hold one
+    # both unsafe records drawn, near-equally (7's windows are clipped at the stream's start)
+    assert 300 < hits[7] < 500 and 300 < hits[300] < 500
+    # without the option the draws are the plain uniform ones, rng use unchanged
+    a = rep.sample(16, 20, np.random.default_rng(1))
+    z = rep.sample(16, 20, np.random.default_rng(1), unsafe_fraction=0.0)
+    assert all(np.array_equal(a[k], z[k]) for k in a)
+
+
+def test_unsafe_fraction_without_unsafe_records_is_uniform() -> None:
+    rep = Replay(1000)
+    rep.add(0, _chunk(0, 0, 100), first_step=0)
+    rep.add(1, _with_unsafe(1, 0, 10, [3]), first_step=0)  # shorter than a sequence
+    b = rep.sample(8, 20, np.random.default_rng(0), unsafe_fraction=1.0)
+    assert b["safe"].all() and (b["obs"][:, 0, 0] == 0).all()
+    with pytest.raises(ValueError, match="unsafe_fraction"):
+        rep.sample(8, 20, np.random.default_rng(0), unsafe_fraction=1.5)
