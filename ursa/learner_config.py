@@ -69,9 +69,9 @@ class LearnerConfig:
     """Loss of the world model's φ head: ``symlog``, the squared error of symlog(φ)
     (DreamerV3's vector-decoder loss), whose scale is the features' own; ``skill``, the squared
     error ‖φ̂ − φ‖²_Σ in the metric of δ (Σ the repertoire's KDE covariance, as the SF critic's
-    loss), which trains the model to place φ to a fraction of δ. On the point recipe ``skill``
-    executed more skills within δ but let the model forget the unsafe disc, which only the
-    prefill visits (docs/learner.md), so ``symlog`` stays the default."""
+    loss), which trains the model to place φ to a fraction of δ. The point recipe uses ``skill``
+    with ``replay_unsafe`` (alone it let the model forget the unsafe disc, which only the
+    prefill visits; docs/learner.md); the A1 presets keep ``symlog``."""
 
     # --- batches -------------------------------------------------------------------------------
     batch_size: int = 16
@@ -221,10 +221,14 @@ class LearnerConfig:
         """The point-env learning recipe (the learning tests' and ``--preset point``): ``tiny``
         sizes with faster learning rates, 128 imagination starts, a high replay ratio, shorter
         horizons (γ 0.98, cost γ 0.9) so that 3000 updates suffice and the skill constraint
-        enforced at δ/4; docs/learner.md gives the measurements behind each."""
+        enforced at δ/4; a world model that learns position fast (lr 1e-3, φ loss in δ's
+        metric) and keeps the unsafe disc (1 in 10 replayed sequences holds an unsafe step);
+        docs/learner.md gives the measurements behind each."""
         base = cls.tiny(
             imag_starts=128,
-            model_lr=3e-4,
+            model_lr=1e-3,
+            phi_metric="skill",
+            replay_unsafe=0.1,
             actor_lr=1e-4,
             critic_lr=1e-4,
             lagrange_lr=1e-4,

@@ -305,7 +305,7 @@ def test_phi_head_error_is_measured_in_the_metric_of_delta() -> None:
     assert phi_loss(cfg, wide) == pytest.approx(want, rel=1e-4)
     assert phi_loss(cfg, narrow) == pytest.approx(100.0 * want, rel=1e-3)
     sym = dataclasses.replace(cfg, phi_metric="symlog")
-    assert LearnerConfig().phi_metric == "symlog"  # the default: the learning recipes' loss
+    assert LearnerConfig().phi_metric == "symlog"  # the default (the A1 presets' loss)
     assert phi_loss(sym, narrow) == pytest.approx(phi_loss(sym, wide), rel=1e-6)
     assert phi_loss(sym, wide) < want / 10.0  # the features' own scale: a small term
     with pytest.raises(ValueError, match="phi_metric"):
