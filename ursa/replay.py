@@ -40,6 +40,14 @@ class _Stream:
         return int(self.order[self.start]) if len(self) else np.iinfo(np.int64).max
 
 
+def _locate(counts: np.ndarray, picks: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Indices into the concatenation of groups of ``counts`` (G,) items -> (group, index in
+    the group), each (N,) for ``picks`` (N,)."""
+    cum = np.cumsum(counts)
+    which = np.searchsorted(cum, picks, side="right")
+    return which, picks - (cum[which] - counts[which])
+
+
 class Replay:
     """Capacity-bounded FIFO replay of per-collector streams; see the module docstring."""
 
@@ -182,10 +190,7 @@ class Replay:
         starts: list[tuple[int, int]] = self._unsafe_starts(
             sids, valid, seq_len, round(unsafe_fraction * batch), rng
         )
-        picks = rng.integers(0, total, size=batch - len(starts))
-        cum = np.cumsum(valid)
-        which = np.searchsorted(cum, picks, side="right")
-        offs = picks - (cum[which] - valid[which])
+        which, offs = _locate(valid, rng.integers(0, total, size=batch - len(starts)))
         starts += [(int(w), int(o)) for w, o in zip(which, offs, strict=True)]
         out = {
             k: np.zeros((batch, seq_len, *shape), dtype)
@@ -223,11 +228,9 @@ class Replay:
         counts = np.array([len(u) for u in unsafe], np.int64)
         if counts.sum() == 0:
             return []
-        picks = rng.integers(0, int(counts.sum()), size=n)
-        cum = np.cumsum(counts)
-        which = np.searchsorted(cum, picks, side="right")
+        which, rows = _locate(counts, rng.integers(0, int(counts.sum()), size=n))
         out = []
-        for w, p in zip(which, picks - (cum[which] - counts[which]), strict=True):
+        for w, p in zip(which, rows, strict=True):
             i = int(unsafe[w][p])
             lo, hi = max(0, i - seq_len + 1), min(i, int(valid[w]) - 1)
             out.append((int(w), int(rng.integers(lo, hi + 1))))
