@@ -46,6 +46,9 @@ def main() -> None:
     ap.add_argument("--window", type=int, default=1000, help="env steps per printed row")
     ap.add_argument("--set", nargs="*", default=[], metavar="FIELD=VALUE", help="learner fields")
     ap.add_argument("--a1", nargs="*", default=[], metavar="FIELD=VALUE", help="A1Config fields")
+    ap.add_argument(
+        "--collector", nargs="*", default=[], metavar="FIELD=VALUE", help="CollectorConfig fields"
+    )
     ap.add_argument("--out", type=Path, default=None, help="the curve as JSON")
     ap.add_argument("--run-dir", type=Path, default=None, help="save the run directory here")
     a = ap.parse_args()
@@ -63,6 +66,9 @@ def main() -> None:
     cfg = dataclasses.replace(cfg, learner=dataclasses.replace(cfg.learner, **learner))
     if a.a1:
         cfg = dataclasses.replace(cfg, a1=dataclasses.replace(cfg.a1, **_parse_sets(a.a1)))
+    if a.collector:
+        col = dataclasses.replace(cfg.collector, **_parse_sets(a.collector))
+        cfg = dataclasses.replace(cfg, collector=col)
     loop = make_serial_loop(cfg, prefill=a.prefill, seed=a.seed, env_seed=a.seed)
     rec = SerialRecorder(loop) if a.run_dir is not None else None
     rows: list[dict[str, Any]] = []
@@ -108,6 +114,7 @@ def main() -> None:
         "seed": a.seed,
         "learner_overrides": learner,
         "a1_overrides": _parse_sets(a.a1),
+        "collector_overrides": _parse_sets(a.collector),
         "updates": loop.learner.updates,
         "env_steps": loop.env_steps,
         "seconds": time.perf_counter() - t0,

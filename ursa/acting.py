@@ -46,6 +46,12 @@ class ActingConfig:
     robot's base pose (``base_pose``: position and orientation quaternion, 7 numbers)."""
     explore: bool = True
     """Sample actions from π (collection explores); False takes the policy's mode."""
+    random_scale: float = 1.0
+    """Random actions (the prefill) are uniform in [−s, s]^A; 1 is the whole action box."""
+
+    def __post_init__(self) -> None:
+        if not 0.0 < self.random_scale <= 1.0:
+            raise ValueError(f"random_scale must lie in (0, 1], got {self.random_scale}")
 
 
 @dataclass(frozen=True)
@@ -129,7 +135,8 @@ class Acting:
     def _action(self, random: bool) -> np.ndarray:
         if random:
             self._random = True
-            return self.rng.uniform(-1.0, 1.0, self.env.act_dim)
+            s = self.config.random_scale
+            return self.rng.uniform(-s, s, self.env.act_dim)
         if self._random:  # the policy takes over: a carry from its current weights
             self._random = False
             self.carry = self.policy.initial_carry()

@@ -49,6 +49,10 @@ class CollectorConfig:
     robot) never waits, and the learner reports the ratio it reaches."""
     pace_tolerance: float = 0.1
     """Relative shortfall of the replay ratio below its target before collectors wait."""
+    random_scale: float = 1.0
+    """Uniformly random actions (the prefill, and until the first weights arrive) lie in
+    [−s, s]^A. 1 is the whole action box; the A1's posture task needs less, since every
+    action of the whole box breaks its posture limits (docs/learner.md)."""
 
 
 @dataclass(frozen=True)

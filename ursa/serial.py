@@ -43,6 +43,8 @@ class SerialConfig:
     ``ursa-supervised``, the VAE input in ``ursa`` (e.g. ``vae_input``)."""
     prefill: int = 2000
     """Env steps of uniformly random actions before the first update."""
+    random_scale: float = 1.0
+    """The prefill's actions are uniform in [−s, s]^A (``CollectorConfig.random_scale``)."""
     skill_period: int = 250
     """T: env steps between two skills drawn from the repertoire's KDE."""
     chunk_len: int = 50
@@ -152,7 +154,12 @@ class SerialLoop:
         self.acting = Acting(
             self.env,
             self.policy,
-            ActingConfig(feature=c.feature, skill_period=c.skill_period, chunk_len=c.chunk_len),
+            ActingConfig(
+                feature=c.feature,
+                skill_period=c.skill_period,
+                chunk_len=c.chunk_len,
+                random_scale=c.random_scale,
+            ),
             self.rng,
         )
         self.unsafe_steps = 0

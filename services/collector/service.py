@@ -120,6 +120,7 @@ class Collector:
                 skill_period=self.cfg.collector.skill_period,
                 chunk_len=self.cfg.collector.chunk_len,
                 stamps=True,
+                random_scale=self.cfg.collector.random_scale,
             ),
             self.rng,
             seed=args.seed,

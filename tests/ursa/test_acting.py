@@ -6,6 +6,7 @@ sanitised and counted."""
 from __future__ import annotations
 
 import numpy as np
+import pytest
 import torch
 
 from tests.ursa.envs.rescued import RescuedPoint
@@ -111,3 +112,16 @@ def test_stamps_and_pose_are_recorded_when_asked() -> None:
     (c,) = chunks
     assert c.data["stamp"].dtype == np.float64 and np.all(np.diff(c.data["stamp"]) >= 0)
     assert "base_pose" not in c.data  # the point env reports no pose
+
+
+def test_random_actions_fill_the_box_scaled_by_random_scale() -> None:
+    full = _acting(PointEnv(seed=1))
+    narrow = _acting(PointEnv(seed=1), random_scale=0.2)
+    a = np.array([full.step(random=True).action for _ in range(400)])
+    b = np.array([narrow.step(random=True).action for _ in range(400)])
+    # same generator, same draws: the scaled actions are the full-box ones times s
+    np.testing.assert_allclose(b, 0.2 * a)
+    assert np.abs(a).max() > 0.95 and np.abs(b).max() <= 0.2
+    for bad in (0.0, -0.5, 1.5):
+        with pytest.raises(ValueError, match="random_scale"):
+            ActingConfig(feature="position", random_scale=bad)

@@ -265,6 +265,7 @@ def serial_config(
         prefill=prefill,
         skill_period=cfg.collector.skill_period,
         chunk_len=cfg.collector.chunk_len,
+        random_scale=cfg.collector.random_scale,
         repertoire_size=cfg.repertoire.size,
         n_z=cfg.repertoire.n_z,
         seed=seed,
