@@ -21,6 +21,7 @@ import queue
 import threading
 import time
 from collections import deque
+from collections.abc import Iterable
 from dataclasses import dataclass
 from typing import Any
 
@@ -50,6 +51,24 @@ from ursa.rundir import TEMP_SUFFIX, RunDir, atomic_write
 from ursa.threads import limit_threads
 
 CHUNK_FIELDS = ("obs", "action", "reward", "cost", "safe", "features", "skill")
+LATENCY_WINDOW_S = 60.0
+"""The stats' chunk latency is over the chunks received in this many seconds: a window of the
+last N chunks would, at a paced collector's ~1 chunk/s, hold the chunks a collector kept while
+no learner listened (its start-up backlog, seconds old when sent) for the whole run."""
+
+
+def latency_stats(latencies: Iterable[tuple[float, float]], now: float) -> dict[str, float]:
+    """p50, p99 (ms) and count of the latencies (s) received after ``now − LATENCY_WINDOW_S``;
+    ``latencies`` holds (receipt time, latency) pairs. Empty when none is that recent."""
+    lat = [x for t, x in latencies if t >= now - LATENCY_WINDOW_S]
+    if not lat:
+        return {}
+    ms = np.asarray(lat) * 1e3
+    return {
+        "chunk_latency_p50_ms": float(np.percentile(ms, 50)),
+        "chunk_latency_p99_ms": float(np.percentile(ms, 99)),
+        "chunk_latency_n": float(len(ms)),
+    }
 
 
 @dataclass(frozen=True)
@@ -117,8 +136,9 @@ class LearnerService:
         self.weights_version = 0
         self.metrics: dict[str, float] = {}
         self.lags: deque[int] = deque(maxlen=200)
-        self.latencies: deque[float] = deque(maxlen=2000)
-        """Seconds from a chunk's send stamp to its receipt (recent chunks)."""
+        self.latencies: deque[tuple[float, float]] = deque(maxlen=2000)
+        """(receipt on the monotonic clock, seconds from the chunk's send stamp to its receipt)
+        of recent chunks; the stats report those of the last ``LATENCY_WINDOW_S``."""
         self.update_times: deque[float] = deque(maxlen=100)
 
         self.replay_dir = RunDir(args.run.dir).replay
@@ -292,7 +312,7 @@ class LearnerService:
 
     # ---- bus callbacks ---------------------------------------------------------------------
     def _on_chunk(self, msg: pb.TransitionChunk, key: str) -> None:
-        self.latencies.append(time.time() - msg.header.stamp)
+        self.latencies.append((time.monotonic(), time.time() - msg.header.stamp))
         obs = codec.from_array(msg.obs)
         if obs.ndim != 2 or obs.shape[0] == 0:
             raise codec.BadMessage(f"chunk obs of shape {obs.shape}")
@@ -520,10 +540,7 @@ class LearnerService:
             "replay_unpersisted_dropped": self.unpersisted_dropped,
             "checkpoint_tmp_removed": self.stale_tmp_removed,
         }
-        if self.latencies:
-            lat = np.asarray(self.latencies) * 1e3
-            scalars["chunk_latency_p50_ms"] = float(np.percentile(lat, 50))
-            scalars["chunk_latency_p99_ms"] = float(np.percentile(lat, 99))
+        scalars.update(latency_stats(self.latencies, time.monotonic()))
         for k, v in self.metrics.items():
             if np.isfinite(v):
                 scalars[k] = float(v)
