@@ -459,6 +459,14 @@ class Learner:
             entropy_reg = entropy
             actor_loss = -(weight * objective).mean()
         actor_loss = actor_loss - c.actor_entropy * (weight * entropy_reg).mean()
+        if c.actor_mean_bound > 0.0:
+            # a pre-tanh mean past the bound saturates tanh, where the objective's gradient
+            # vanishes: the mean drifts there in flat regions and cannot come back
+            mu = mean if reinforce else self.actor(fd, skd)[0]
+            excess = (mu.abs() - c.actor_mean_bound).clamp(min=0.0)
+            sat = excess.pow(2).sum(-1)
+            actor_loss = actor_loss + (weight * sat).mean()
+            metrics["actor/mean_excess"] = excess.detach().mean()
         metrics["actor/loss"] = actor_loss.detach()
         metrics["actor/entropy"] = entropy.detach().mean()
         metrics["ret/value"] = ret_v.detach().mean()

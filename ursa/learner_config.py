@@ -127,6 +127,11 @@ class LearnerConfig:
     """Smallest std of the actor's pre-tanh Gaussian."""
     actor_max_std: float = 1.0
     """Largest std of the actor's pre-tanh Gaussian."""
+    actor_mean_bound: float = 0.0
+    """0: off. Otherwise the actor's loss adds Σ_a max(|μ_a| − bound, 0)² of its pre-tanh mean
+    at the imagined states, so that the mean cannot drift into tanh's saturation (|tanh μ| → 1,
+    where the objective's gradient vanishes): on the A1 every joint ended at a limit of its
+    range without it (docs/learner.md)."""
 
     # --- Lagrange multipliers ------------------------------------------------------------------
     lagrange_units: int = 64
@@ -185,6 +190,8 @@ class LearnerConfig:
             raise ValueError("delta_scale must lie in (0, 1]")
         if not 0.0 <= self.replay_unsafe <= 1.0:
             raise ValueError("replay_unsafe must lie in [0, 1]")
+        if self.actor_mean_bound < 0.0:
+            raise ValueError("actor_mean_bound must be ≥ 0 (0: off)")
 
     @property
     def gamma_cost(self) -> float:

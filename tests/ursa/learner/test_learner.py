@@ -141,6 +141,40 @@ def test_delta_scale_tightens_the_skill_constraint() -> None:
         dataclasses.replace(MICRO, delta_scale=0.0)
 
 
+@pytest.mark.parametrize("actor_grad", ["dynamics", "reinforce"])
+def test_actor_mean_bound_penalises_a_saturated_mean(actor_grad: str) -> None:
+    """An actor whose pre-tanh mean is 4 everywhere (output weights 0, bias 4): with
+    ``actor_mean_bound`` 1 the actor's loss grows by Σ_a (4 − 1)² = 18 per imagined state,
+    weighted by γ^t as the objective is, and nothing else changes (same batch, same seed);
+    its first step lowers the mean's bias (the penalty's gradient dominates)."""
+    replay = _random_replay()
+    snap = _snapshot(np.random.default_rng(0).uniform(-1, 1, size=(300, 2)))
+    batch = replay.sample(MICRO.batch_size, MICRO.seq_len, np.random.default_rng(0))
+    out, bias = {}, {}
+    for bound in (0.0, 1.0):
+        cfg = dataclasses.replace(
+            MICRO,
+            mode="ursa-supervised",
+            actor_grad=actor_grad,  # type: ignore[arg-type]
+            actor_mean_bound=bound,
+        )
+        learner = Learner(cfg, 6, 2, 2)
+        head = learner.actor.mlp.head
+        assert head is not None
+        with torch.no_grad():
+            head.bias[:2] = 4.0  # the mean's half of the output (its weights start at 0)
+        out[bound] = learner.train_step(batch, snap)
+        bias[bound] = head.bias[:2].detach().clone()
+    g = MICRO.discount ** np.arange(MICRO.imag_horizon)
+    penalty = 18.0 * g.mean()
+    assert out[1.0]["actor/loss"] - out[0.0]["actor/loss"] == pytest.approx(penalty, rel=1e-4)
+    assert out[1.0]["actor/mean_excess"] == pytest.approx(3.0, rel=1e-5)
+    assert "actor/mean_excess" not in out[0.0]
+    assert torch.all(bias[1.0] < 4.0)
+    with pytest.raises(ValueError, match="actor_mean_bound"):
+        dataclasses.replace(MICRO, actor_mean_bound=-1.0)
+
+
 def test_vae_encoder_reencodes_repertoire() -> None:
     cfg = dataclasses.replace(MICRO, mode="ursa", vae_publish_every=1000)
     learner = Learner(cfg, 6, 2, 4)
