@@ -130,8 +130,9 @@ class LearnerConfig:
     actor_mean_bound: float = 0.0
     """0: off. Otherwise the actor's loss adds Σ_a max(|μ_a| − bound, 0)² of its pre-tanh mean
     at the imagined states, so that the mean cannot drift into tanh's saturation (|tanh μ| → 1,
-    where the objective's gradient vanishes): on the A1 every joint ended at a limit of its
-    range without it (docs/learner.md)."""
+    where the objective's gradient vanishes). Measured on the A1 (docs/learner.md): at 1 the
+    policy stops at the bound in the same low pose it takes at the joint limits without it, so
+    no preset uses it."""
 
     # --- Lagrange multipliers ------------------------------------------------------------------
     lagrange_units: int = 64
