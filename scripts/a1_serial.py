@@ -13,6 +13,7 @@ A uniformly random policy's violation rate on the A1 is 0.876 (scripts/random_po
 from __future__ import annotations
 
 import argparse
+import ast
 import dataclasses
 import json
 import sys
@@ -31,7 +32,10 @@ def _parse_sets(items: list[str]) -> dict[str, Any]:
         try:
             out[key] = json.loads(value)
         except json.JSONDecodeError:
-            out[key] = value
+            try:  # Python literals: True, False, None, tuples
+                out[key] = ast.literal_eval(value)
+            except (ValueError, SyntaxError):
+                out[key] = value
     return out
 
 

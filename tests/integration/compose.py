@@ -191,9 +191,10 @@ class Stack:
             (dest / f"{name or cid}.log").write_text(logs.stdout + logs.stderr)
 
 
-@pytest.fixture(scope="module")
+@pytest.fixture(scope="session")
 def image() -> str:
-    """The project image, built from this tree on the base image (``docker/build.sh``). Skips
+    """The project image, built from this tree on the base image (``docker/build.sh``), once per
+    session for both compose modules (``tests/integration/conftest.py`` provides it). Skips
     where no Docker engine answers; fails where one does but Compose is missing."""
     why = docker_available()
     if why is not None:

@@ -27,9 +27,8 @@ import time
 
 import pytest
 
-from tests.integration.compose import (  # noqa: F401 - `image` is a fixture
+from tests.integration.compose import (
     compose_stack,
-    image,
     log,
     wait,
 )
@@ -38,7 +37,7 @@ pytestmark = [pytest.mark.slow, pytest.mark.docker]
 
 
 @pytest.mark.timeout(3600)
-def test_compose_stack_scales_and_survives_faults(image: str) -> None:  # noqa: F811
+def test_compose_stack_scales_and_survives_faults(image: str) -> None:
     with compose_stack(
         image,
         project_prefix="ursatest",

@@ -43,11 +43,10 @@ from typing import Any
 
 import pytest
 
-from tests.integration.compose import (  # noqa: F401 - `image` is a fixture
+from tests.integration.compose import (
     ROOT,
     Stack,
     compose_stack,
-    image,
     log,
     wait,
 )
@@ -201,7 +200,7 @@ volumes:
 
 
 @pytest.fixture(scope="module")
-def faults(image: str, tmp_path_factory: pytest.TempPathFactory) -> Iterator[Faults]:  # noqa: F811
+def faults(image: str, tmp_path_factory: pytest.TempPathFactory) -> Iterator[Faults]:
     override = tmp_path_factory.mktemp("compose") / "tmpfs-runs.yaml"
     override.write_text(OVERRIDE)
     with compose_stack(
