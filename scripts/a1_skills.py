@@ -43,8 +43,11 @@ def main() -> None:
     skills = rep.sample(a.skills, np.random.default_rng(1))
     cov, delta = rep.cov, rep.delta()
     feat = cfg.feature_input_key
-    res = evaluate_skills(run.require_policy(), run.env(seed=a.seed), skills, steps, cov, feat)
-    rnd = evaluate_skills(None, run.env(seed=a.seed), skills, steps, cov, feat)
+    policy = run.require_policy()
+    res = evaluate_skills(policy, run.env(seed=a.seed), skills, steps, cov, feat)
+    # random actions' φ: the run's encoder for a learned feature, the feature itself otherwise
+    encode = policy.features if cfg.feature == "vae" else None
+    rnd = evaluate_skills(None, run.env(seed=a.seed), skills, steps, cov, feat, encode=encode)
     out = {
         "run": str(a.run),
         "updates": run.updates,

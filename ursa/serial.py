@@ -98,18 +98,20 @@ def evaluate_skills(
     seed: int = 0,
     record: bool = False,
     settle: int | None = None,
+    encode: Callable[[np.ndarray], np.ndarray] | None = None,
 ) -> EvalResult:
     """Run each skill (K, D) for ``steps`` env steps in turn, without resets, and score it by
     the rule of :mod:`ursa.scoring`: :func:`ursa.eval.rollout.score_skills` (the one
     evaluation rollout, with the distance of each achieved skill to its target).
 
-    ``policy`` None acts uniformly at random (φ = the provided feature ``feature``); otherwise
+    ``policy`` None acts uniformly at random (φ = the provided feature ``feature``, or
+    ``encode`` of it: a learned φ, e.g. the trained policy's ``features``); otherwise
     φ is the policy's (its VAE encoder in ``ursa`` mode) applied to
     ``info["features"][feature]``; distances use Σ = ``metric_cov``, the metric of δ. ``record``
     keeps the observations and actions (replay convention: the observation after each action).
     """
     r, distance = score_skills(
-        policy, env, skills, steps, feature, metric_cov, explore, seed, settle, record
+        policy, env, skills, steps, feature, metric_cov, explore, seed, settle, record, encode
     )
     assert r.achieved is not None
     return EvalResult(r.skills, r.achieved, distance, r.returns, r.violation_rate, r.obs, r.actions)

@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import math
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -128,14 +128,15 @@ def execute_skills(
     seed: int = 0,
     progress: bool = True,
     desc: str = "skills",
+    encode: Callable[[np.ndarray], np.ndarray] | None = None,
 ) -> Rollouts:
     """Run each skill of ``skills`` (K, D) for ``steps`` env steps.
 
     policy: None acts uniformly at random (a collector's prefill; φ is then the ``phi_key``
-    feature itself, which must be a provided feature); a policy without skills (``daydreamer``)
-    ignores the skill (pass ``np.zeros((K, 0))``). record: ``info["features"]`` keys whose mean
-    is kept. phi_key: the key φ is computed from (the VAE input or the provided feature); None:
-    no φ.
+    feature itself, or ``encode`` (n, F) -> (n, D) of it for a learned φ); a policy without
+    skills (``daydreamer``) ignores the skill (pass ``np.zeros((K, 0))``). record:
+    ``info["features"]`` keys whose mean is kept. phi_key: the key φ is computed from (the
+    VAE input or the provided feature); None: no φ.
     tracking: ``phi_key`` is φ itself (a provided feature): also keep the per-step absolute
     tracking error. settle: the first steps of each skill are executed but not measured
     (default: the scoring rule's, :func:`ursa.scoring.settle_steps`). explore: sampled actions
@@ -212,7 +213,8 @@ def execute_skills(
                     err[i] += np.abs(np.asarray(feats[phi_key], np.float64) - z)
             if achieved is not None and phi_in:
                 x = np.stack(phi_in)
-                achieved[i] = (policy.features(x) if policy is not None else x).mean(0)
+                phi = policy.features if policy is not None else encode
+                achieved[i] = (phi(x) if phi is not None else x).mean(0)
             bar.update(steps)
     finally:
         bar.close()
@@ -262,10 +264,12 @@ def score_skills(
     seed: int = 0,
     settle: int | None = None,
     record: bool = False,
+    encode: Callable[[np.ndarray], np.ndarray] | None = None,
 ) -> tuple[Rollouts, np.ndarray]:
     """:func:`execute_skills` of ``skills`` (K, D), reset-free, and the distance (K,) of each
     achieved skill to its target in the metric Σ = ``metric_cov`` (the scoring rule of
-    :mod:`ursa.scoring`). ``record`` keeps the observations and actions."""
+    :mod:`ursa.scoring`). ``record`` keeps the observations and actions; ``encode``: φ of
+    random actions (``policy`` None) on a learned feature."""
     skills = np.asarray(skills, np.float64)
     r = execute_skills(
         policy,
@@ -279,6 +283,7 @@ def score_skills(
         keep_actions=record,
         seed=seed,
         progress=False,
+        encode=encode,
     )
     assert r.achieved is not None
     return r, scoring.skill_distance(r.achieved, skills, metric_cov)

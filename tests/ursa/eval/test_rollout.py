@@ -63,6 +63,35 @@ def test_rollout_equals_stepping_by_hand(with_policy: bool) -> None:
         np.testing.assert_allclose(r.actions.reshape(-1, 2), draws, rtol=1e-6)
 
 
+def test_random_actions_on_a_learned_feature_score_its_encoding_per_step() -> None:
+    """Random actions with ``encode`` (a learned φ): the achieved skill is the mean of the
+    encoded steps, not the encoding of the mean input (a non-linear encoder differs)."""
+
+    def encode(x: np.ndarray) -> np.ndarray:  # (n, 2) -> (n, 1)
+        return x[:, :1] ** 2 * 3.0
+
+    steps = 40
+    r = execute_skills(
+        None,
+        PointEnv(seed=3),
+        np.zeros((2, 1)),
+        steps,
+        phi_key="position",
+        keep_actions=True,
+        seed=9,
+        progress=False,
+        encode=encode,
+    )
+    assert r.actions is not None and r.achieved is not None
+    env = PointEnv(seed=3)
+    env.reset()
+    for i in range(2):
+        pos = np.array([env.step(r.actions[i, t])[4]["features"]["position"] for t in range(steps)])
+        want = encode(pos[8:]).mean(0)
+        np.testing.assert_allclose(r.achieved[i], want, atol=1e-5)
+        assert abs(float(encode(pos[8:].mean(0, keepdims=True))[0, 0]) - want[0]) > 1e-3
+
+
 def test_rollout_depends_on_its_seed_only() -> None:
     pol = _policy()
     z = np.array([[0.2, 0.1]])
