@@ -44,10 +44,18 @@ if [ "$WHEELS" = 1 ]; then
   if [ "$(cat "$WHEELS_DIR/.stamp" 2>/dev/null || true)" != "$stamp" ]; then
     echo "downloading the wheelhouse into $WHEELS_DIR"
     rm -f "$WHEELS_DIR/.stamp"
-    "$PYTHON" -m pip download --quiet --disable-pip-version-check -d "$WHEELS_DIR" \
-      --only-binary=:all: --python-version "$PY_VERSION" --implementation cp \
-      --abi "cp$(echo "$PY_VERSION" | tr -d .)" \
-      -r "$reqs.new" -c docker/constraints.txt
+    # one retry: a dropped connection in the middle of a multi-GB download fails pip
+    # outright, and the second try only fetches what is missing
+    for try in 1 2; do
+      if "$PYTHON" -m pip download --quiet --disable-pip-version-check -d "$WHEELS_DIR" \
+          --only-binary=:all: --python-version "$PY_VERSION" --implementation cp \
+          --abi "cp$(echo "$PY_VERSION" | tr -d .)" \
+          -r "$reqs.new" -c docker/constraints.txt; then
+        break
+      fi
+      [ "$try" = 2 ] && { echo "pip download failed twice" >&2; exit 1; }
+      echo "pip download failed; retrying once"
+    done
     echo "$stamp" > "$WHEELS_DIR/.stamp"
   fi
   mv "$reqs.new" "$reqs"

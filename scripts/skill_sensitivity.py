@@ -5,7 +5,7 @@ action over the skills (averaged over steps and action dimensions), its std over
 first skill, and the mean |action| (near 1: tanh saturated, where no gradient moves it).
 
 A policy that executes skills changes its action with the skill: the point recipe's seed 0
-(3000 updates, 84 % of its skills within δ) gives 0.55 over skills (actions in [−1, 1]); the
+(3000 updates; the learning tests judge it) gives 0.55 over skills (actions in [−1, 1]); the
 A1's ``cpu`` variants that stand still for every skill give ~0.01 (docs/learner.md).
 
     .venv/bin/python scripts/skill_sensitivity.py RUN_DIR [--skills 16] [--steps 150]
