@@ -44,17 +44,20 @@ if [ "$WHEELS" = 1 ]; then
   if [ "$(cat "$WHEELS_DIR/.stamp" 2>/dev/null || true)" != "$stamp" ]; then
     echo "downloading the wheelhouse into $WHEELS_DIR"
     rm -f "$WHEELS_DIR/.stamp"
-    # one retry: a dropped connection in the middle of a multi-GB download fails pip
-    # outright, and the second try only fetches what is missing
+    # one retry, past pip's cache: a fresh clone's first build failed on a wheel whose hash did
+    # not match (2026-12-03); the second try only fetches what is missing
+    nocache=""
     for try in 1 2; do
-      if "$PYTHON" -m pip download --quiet --disable-pip-version-check -d "$WHEELS_DIR" \
+      # shellcheck disable=SC2086
+      if "$PYTHON" -m pip download --quiet --disable-pip-version-check $nocache -d "$WHEELS_DIR" \
           --only-binary=:all: --python-version "$PY_VERSION" --implementation cp \
           --abi "cp$(echo "$PY_VERSION" | tr -d .)" \
           -r "$reqs.new" -c docker/constraints.txt; then
         break
       fi
       [ "$try" = 2 ] && { echo "pip download failed twice" >&2; exit 1; }
-      echo "pip download failed; retrying once"
+      echo "pip download failed; retrying once without pip's cache"
+      nocache="--no-cache-dir"
     done
     echo "$stamp" > "$WHEELS_DIR/.stamp"
   fi
