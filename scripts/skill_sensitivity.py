@@ -6,7 +6,8 @@ first skill, and the mean |action| (near 1: tanh saturated, where no gradient mo
 
 A policy that executes skills changes its action with the skill: the point recipe's seed 0
 (3000 updates; the learning tests judge it) gives 0.55 over skills (actions in [−1, 1]); the
-A1's ``cpu`` variants that stand still for every skill give ~0.01 (docs/learner.md).
+A1's ``cpu`` variants that stand still for every skill give 0.0015–0.0125
+(docs/learner.md).
 
     .venv/bin/python scripts/skill_sensitivity.py RUN_DIR [--skills 16] [--steps 150]
 """
