@@ -14,7 +14,6 @@ docs/learner.md ("The A1 actor ignores its skill"): 0.01–0.05 (δ 1.0–1.4).
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import json
 import sys
 from pathlib import Path
@@ -35,8 +34,7 @@ def main() -> None:
 
     from ursa import kde
     from ursa.agent import joint_input
-    from ursa.eval.loading import load_run, read_checkpoint
-    from ursa.learner import Learner
+    from ursa.eval.loading import load_learner, load_run, read_checkpoint
     from ursa.serial import evaluate_skills
     from ursa.threads import limit_threads
 
@@ -56,10 +54,7 @@ def main() -> None:
         record=True,
     )
     assert res.obs is not None and res.actions is not None
-    state = read_checkpoint(a.run / "checkpoints" / "learner.pt")
-    dims = [int(x) for x in state["dims"]]
-    learner = Learner(dataclasses.replace(cfg.learner, device="cpu"), *dims)
-    learner.load_state_dict(state)
+    learner = load_learner(cfg, read_checkpoint(a.run / "checkpoints" / "learner.pt"))
     k, t = res.obs.shape[:2]
     first = np.zeros((k, t), bool)
     first[:, 0] = True

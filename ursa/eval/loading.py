@@ -160,16 +160,26 @@ class LoadedRun:
         return self.repertoire
 
 
+def load_learner(cfg: Config, state: dict[str, Any]) -> Learner:
+    """The :class:`Learner` of a checkpoint state, rebuilt on the CPU with the checkpoint's
+    dims (obs, act, feature input, skill)."""
+    obs_dim, act_dim, feat_in, skill_dim = (int(x) for x in state["dims"])
+    learner = Learner(
+        dataclasses.replace(cfg.learner, device="cpu"), obs_dim, act_dim, feat_in, skill_dim
+    )
+    learner.load_state_dict(state)
+    return learner
+
+
 def load_policy(
     cfg: Config, state: dict[str, Any], seed: int = 0
 ) -> tuple[Policy, tuple[int, int, int, int]]:
     """A :class:`Policy` with the weights of a learner checkpoint state: the learner is rebuilt
-    with the checkpoint's dims, then ships its weights as collectors receive them
+    (:func:`load_learner`), then ships its weights as collectors receive them
     (``policy_weights_bytes`` -> ``load_weights_bytes``)."""
     obs_dim, act_dim, feat_in, skill_dim = (int(x) for x in state["dims"])
     lc = dataclasses.replace(cfg.learner, device="cpu")
-    learner = Learner(lc, obs_dim, act_dim, feat_in, skill_dim)
-    learner.load_state_dict(state)
+    learner = load_learner(cfg, state)
     policy = Policy(lc, obs_dim, act_dim, skill_dim, feat_in, seed=seed)
     policy.load_weights_bytes(learner.policy_weights_bytes())
     return policy, (obs_dim, act_dim, feat_in, skill_dim)
