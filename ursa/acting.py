@@ -69,8 +69,24 @@ class Chunk:
 
     @property
     def safe_features(self) -> np.ndarray:
-        """The feature inputs of the safe records (M, F): what the repertoire may admit."""
+        """The feature inputs of the safe records (M, F)."""
         return self.data["features"][self.data["safe"]]
+
+    def archive_features(self, window: int = 1) -> np.ndarray:
+        """What the repertoire may admit (M, F): with ``window`` 1 the feature input of every
+        safe record; with W > 1 the mean over each block of W consecutive records (blocks from
+        the chunk's first record; a trailing partial block is dropped) whose records are all
+        safe. A skill is a sustained mean feature, and the per-step features of a jittering
+        robot (an instantaneous yaw rate) span values that no sustained behaviour reaches."""
+        if window < 1:
+            raise ValueError(f"window must be >= 1, got {window}")
+        if window == 1:
+            return self.safe_features
+        feats, safe = self.data["features"], self.data["safe"]
+        n = (len(feats) // window) * window
+        blocks = feats[:n].reshape(n // window, window, feats.shape[-1])
+        whole = safe[:n].reshape(n // window, window).all(1)
+        return blocks[whole].mean(1, dtype=np.float64).astype(feats.dtype)
 
 
 @dataclass

@@ -53,6 +53,17 @@ class CollectorConfig:
     """Uniformly random actions (the prefill, and until the first weights arrive) lie in
     [−s, s]^A. 1 is the whole action box; the A1's posture task needs less, since every
     action of the whole box breaks its posture limits (docs/learner.md)."""
+    archive_window: int = 1
+    """The repertoire admits the mean feature input of each block of this many consecutive
+    safe steps (``Chunk.archive_features``); 1: every safe step's own. Must divide
+    ``chunk_len`` so that no step is dropped."""
+
+    def __post_init__(self) -> None:
+        if self.archive_window < 1 or self.chunk_len % self.archive_window:
+            raise ValueError(
+                f"archive_window ({self.archive_window}) must be >= 1 and divide "
+                f"chunk_len ({self.chunk_len})"
+            )
 
 
 @dataclass(frozen=True)

@@ -49,6 +49,9 @@ class SerialConfig:
     """T: env steps between two skills drawn from the repertoire's KDE."""
     chunk_len: int = 50
     """Records per replay chunk (as a collector would send them)."""
+    archive_window: int = 1
+    """The repertoire admits the mean feature of each block of this many safe steps
+    (``CollectorConfig.archive_window``)."""
     sync_every: int = 20
     """Updates between two policy weight syncs."""
     snapshot_every: int = 10
@@ -187,7 +190,7 @@ class SerialLoop:
         """A finished chunk into the replay, its safe features into the repertoire."""
         self.replay.add(self.stream_id, chunk.data, chunk.first_step)
         rep = self.repertoire
-        x = chunk.safe_features.astype(np.float64)
+        x = chunk.archive_features(self.config.archive_window).astype(np.float64)
         if rep is not None and len(x):
             if self.learner_config.mode == "ursa":
                 rep.commit_many(self.policy.features(x), x)

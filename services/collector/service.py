@@ -331,7 +331,7 @@ class Collector:
         )
         self._send("chunks", self.pub_chunks, codec.encode(msg))
         self.seq += 1
-        safe_feats = chunk.safe_features
+        safe_feats = chunk.archive_features(self.cfg.collector.archive_window)
         if len(safe_feats):
             fm = pb.SafeFeatures(
                 header=self.rt.header(),

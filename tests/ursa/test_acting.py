@@ -125,3 +125,25 @@ def test_random_actions_fill_the_box_scaled_by_random_scale() -> None:
     for bad in (0.0, -0.5, 1.5):
         with pytest.raises(ValueError, match="random_scale"):
             ActingConfig(feature="position", random_scale=bad)
+
+
+def test_archive_features_are_means_of_whole_safe_blocks() -> None:
+    from ursa.acting import Chunk
+    from ursa.config import CollectorConfig
+
+    feats = np.arange(14, dtype=np.float32).reshape(7, 2)  # rows [0,1], [2,3], ... [12,13]
+    safe = np.array([True, True, True, False, True, True, True])
+    c = Chunk(0, {"features": feats, "safe": safe})
+    np.testing.assert_array_equal(c.archive_features(1), feats[safe])
+    # blocks of 2: [0,1] safe -> mean of rows 0,1; [2,3] has an unsafe step; [4,5] safe;
+    # row 6 is a partial block, dropped
+    np.testing.assert_allclose(c.archive_features(2), [[1.0, 2.0], [9.0, 10.0]])
+    # blocks of 3: rows 0-2 safe -> [2, 3]; rows 3-5 hold the unsafe step
+    np.testing.assert_allclose(c.archive_features(3), [[2.0, 3.0]])
+    assert c.archive_features(3).dtype == np.float32
+    assert c.archive_features(8).shape == (0, 2)
+    with pytest.raises(ValueError):
+        c.archive_features(0)
+    with pytest.raises(ValueError, match="divide"):
+        CollectorConfig(chunk_len=50, archive_window=20)
+    assert CollectorConfig(chunk_len=50, archive_window=25).archive_window == 25

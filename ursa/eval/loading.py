@@ -276,6 +276,7 @@ def serial_config(
         skill_period=cfg.collector.skill_period,
         chunk_len=cfg.collector.chunk_len,
         random_scale=cfg.collector.random_scale,
+        archive_window=cfg.collector.archive_window,
         repertoire_size=cfg.repertoire.size,
         n_z=cfg.repertoire.n_z,
         seed=seed,
