@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import os
 import sys
 import tempfile
 import time
@@ -32,6 +33,7 @@ from learner import measure  # noqa: E402
 
 from services.stack import Stack, StatsWatcher, wait_for  # noqa: E402
 from ursa.config import preset  # noqa: E402
+from ursa.threads import limit_threads  # noqa: E402
 
 IMAG_STARTS = 512
 
@@ -41,7 +43,18 @@ def main() -> None:
     ap.add_argument("--seconds", type=float, default=180.0, help="measured seconds")
     ap.add_argument("--quick", action="store_true", help="60 s instead of --seconds")
     ap.add_argument("--actor-grad", default="dynamics", choices=["dynamics", "reinforce"])
+    ap.add_argument(
+        "--threads",
+        type=int,
+        default=0,
+        help="the learner's torch threads, in the stack and in the reference "
+        "(0: URSA_TORCH_THREADS or 1, the service's default)",
+    )
     a = ap.parse_args()
+    threads = a.threads or int(os.environ.get("URSA_TORCH_THREADS", "1"))
+    # the reference runs with the pools the learner service sets, and the service inherits this
+    os.environ["URSA_TORCH_THREADS"] = str(threads)
+    limit_threads(torch_threads=threads)
     seconds = 60.0 if a.quick else a.seconds
     cfg = preset("small", "a1")
     lc = dataclasses.replace(cfg.learner, imag_starts=IMAG_STARTS, actor_grad=a.actor_grad)
@@ -73,7 +86,7 @@ def main() -> None:
             waited = [w.get("collector", f"c{i}") for i in range(2)]
             print(
                 f"\nA1, 2 collectors, small preset, {IMAG_STARTS} starts x 15 steps, "
-                f"actor {a.actor_grad}, {seconds:.0f} s measured"
+                f"actor {a.actor_grad}, {threads} torch thread(s), {seconds:.0f} s measured"
             )
             print(f"{'':<28}{'value':>10}")
             print(f"{'updates/s (stack)':<28}{rate:>10.3f}")
