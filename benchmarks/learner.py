@@ -9,7 +9,11 @@ Claims, each measured in the same run on the same device and thread count:
 - one URSA update (world model + imagination with V, ψ, C, λ1, λ2 and the actor + VAE) costs a
   bounded multiple of the same learner in ``daydreamer`` mode (world model + reward-only
   actor-critic), with the time split between world model, imagination, actor, critics,
-  multipliers and VAE.
+  multipliers and VAE;
+- at ``small`` sizes, URSA's update against a maintained DreamerV3, sheeprl's (the optional
+  extra ``reference``: ``pip install -e '.[reference]'``), built at the same sizes and timed on
+  the same batches (``benchmarks/reference_dreamerv3.py`` says what differs between the two
+  updates); without sheeprl the ratio is ``nan``.
 
 Threads: the learner service's torch thread count (``--torch-threads``, env
 ``URSA_TORCH_THREADS``, 1 by default: torch's worker threads collapse when collectors hold the
@@ -23,7 +27,8 @@ repertoire snapshot of N_R = 5000 skills; no env is stepped, so this times the l
     .venv/bin/python benchmarks/learner.py --device cpu --presets small --updates 20
 
 The last line is ``RESULT updates_per_s=<small, ursa mode, the preset's update, 512 starts>
-... bf16_ratio=<preset ÷ float32> dynamics_ratio=<reinforce ÷ dynamics updates/s>``.
+... bf16_ratio=<preset ÷ float32> dynamics_ratio=<reinforce ÷ dynamics updates/s> ...
+reference_ratio=<small ursa updates/s ÷ sheeprl DreamerV3 updates/s, nan without sheeprl>``.
 """
 
 from __future__ import annotations
@@ -34,6 +39,7 @@ import os
 import time
 
 import numpy as np
+import reference_dreamerv3 as reference  # benchmarks/reference_dreamerv3.py, beside this script
 import torch
 
 from ursa.learner import Learner, SkillSnapshot
@@ -46,6 +52,8 @@ OBS, ACT, VAE_IN, D = 46, 12, 13, 3
 IMAG_STARTS = 512
 """Imagination starts per update at every preset here (the issue's fixed work per update)."""
 PHASES = ("wm", "imagination", "actor", "critics", "multipliers", "vae")
+REF = "sheeprl-dv3"
+"""The row of the reference learner, sheeprl's DreamerV3 at ``small`` sizes."""
 
 
 def _batch(cfg: LearnerConfig, rng: np.random.Generator) -> dict[str, np.ndarray]:
@@ -92,6 +100,30 @@ def measure(cfg: LearnerConfig, updates: int, warmup: int) -> dict[str, float]:
     return {"updates_per_s": updates / total, "s_per_update": total / updates, **phases}
 
 
+def _count(module: torch.nn.Module | None) -> int:
+    return sum(p.numel() for p in module.parameters()) if module is not None else 0
+
+
+def _sizes_line(cfg: LearnerConfig) -> str:
+    """Both learners' sizes at ``cfg`` (URSA's from its config and modules, sheeprl's read back
+    from its built modules) and whether the network sizes are equal."""
+    ref = reference.reference_sizes(cfg, cfg.device)
+    want = reference.expected_sizes(cfg, OBS, ACT)
+    same = all(ref[k] == v for k, v in want.items())
+    urs = Learner(dataclasses.replace(cfg, mode="ursa"), OBS, ACT, VAE_IN)
+    critics = sum(p.numel() for p in urs.critics.online_parameters())
+    return (
+        f"sizes: sheeprl DreamerV3 read back: deter {ref['deter']}, hidden {ref['hidden']}, "
+        f"stoch {ref['stoch']}x{ref['classes']}, MLPs {ref['layers']}x{ref['units']}, "
+        f"bins {ref['bins']}, obs {ref['obs']}, action {ref['action']}: "
+        + ("equal to URSA's\n" if same else f"DIFFERENT FROM URSA's {want}\n")
+        + f"params: world model {ref['params_world_model']:,} (URSA {_count(urs.wm):,}), "
+        f"actor {ref['params_actor']:,} (URSA {_count(urs.actor):,}), "
+        f"critic {ref['params_critic']:,} (URSA V+psi+C {critics:,}, "
+        f"multipliers {_count(urs.lam1) + _count(urs.lam2):,}, VAE {_count(urs.vae):,})"
+    )
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--device", default="cuda" if torch.cuda.is_available() else "cpu")
@@ -115,6 +147,8 @@ def main() -> None:
     limit_threads(torch_threads=args.threads or int(os.environ.get("URSA_TORCH_THREADS", "1")))
     repeats = args.repeats or 3
     cuda = args.device.startswith("cuda")
+    with_ref = reference.available()
+    ref_note = ""
     rows = []
     for name in args.presets.split(","):
         base = learner_preset(name, device=args.device)  # type: ignore[arg-type]
@@ -135,7 +169,13 @@ def main() -> None:
         ]
         if args.quick and name != "small" and not cuda:
             variants = variants[:1]  # the CPU quick run keeps the paper preset to one update
+        # the reference imagines from every posterior state (B·T): 512 at small sizes
+        ref_here = with_ref and name == "small" and base.batch_size * base.seq_len == IMAG_STARTS
+        if ref_here:
+            ref_note = _sizes_line(base)
         runs: dict[str, list[dict[str, float]]] = {v[0]: [] for v in variants}
+        if ref_here:
+            runs[REF] = []
         for _ in range(repeats if name == "small" or cuda else 1):
             for label, mode, grad, dtype in variants:  # interleaved: load hits every side alike
                 cfg = dataclasses.replace(
@@ -148,6 +188,10 @@ def main() -> None:
                 r = measure(cfg, n, warm)
                 runs[label].append(r)
                 print(f"measured {name}/{label}: {r['updates_per_s']:.3f} updates/s", flush=True)
+            if ref_here:
+                r = reference.measure_reference(n, warm, args.device, config=base)
+                runs[REF].append(r)
+                print(f"measured {name}/{REF}: {r['updates_per_s']:.3f} updates/s", flush=True)
         for label, rs in runs.items():
             best = sorted(rs, key=lambda r: r["updates_per_s"])[len(rs) // 2]  # the median
             rows.append((name, label, best))
@@ -162,7 +206,9 @@ def main() -> None:
     print(head)
     print("-" * len(head))
     for name, mode, r in rows:
-        split = " ".join(f"{100 * r[p] / r['s_per_update']:>10.1f}%" for p in PHASES)
+        split = " ".join(
+            f"{100 * r[p] / r['s_per_update']:>10.1f}%" if p in r else f"{'-':>11}" for p in PHASES
+        )
         print(f"{name:<7} {mode:<13} {r['updates_per_s']:>8.3f} {r['s_per_update']:>8.3f} {split}")
     res = {(n, m): r for n, m, r in rows}
     out = []
@@ -190,12 +236,39 @@ def main() -> None:
             )
             out.append(f"{name}_dynamics_ratio={ratio:.2f}")
     small = res.get(("small", "ursa"))
+    ref = res.get(("small", REF))
+    if ref_note:
+        print(ref_note)
+    if small and ref:
+        day = res.get(("small", "daydreamer"))
+        ratio = small["updates_per_s"] / ref["updates_per_s"]
+        print(
+            f"small: URSA's update runs {ratio:.2f}x the updates/s of sheeprl's DreamerV3 "
+            "at equal sizes (reference)"
+        )
+        if day:
+            print(
+                f"small: URSA's daydreamer-mode update (reward only, no VAE) runs "
+                f"{day['updates_per_s'] / ref['updates_per_s']:.2f}x the updates/s of sheeprl's "
+                "DreamerV3"
+            )
+        reference_ratio = f"reference_ratio={ratio:.3f}"
+    else:
+        if not with_ref:
+            print(
+                "reference: sheeprl is not installed; `pip install -e '.[reference]'` adds "
+                "sheeprl's DreamerV3 at equal sizes (small preset)"
+            )
+        reference_ratio = "reference_ratio=nan"
     first = f"updates_per_s={small['updates_per_s']:.3f}" if small else "updates_per_s=nan"
     small_dtype = resolve_compute_dtype(
         learner_preset("small").compute_dtype, torch.device(args.device)
     )
     compute = "bfloat16" if small_dtype is torch.bfloat16 else "float32"
-    print("RESULT " + " ".join([first, *out, f"device={args.device}", f"compute={compute}"]))
+    print(
+        "RESULT "
+        + " ".join([first, *out, f"device={args.device}", f"compute={compute}", reference_ratio])
+    )
 
 
 if __name__ == "__main__":
