@@ -63,8 +63,15 @@ def main() -> None:
         "violation_rate_random": float(rnd.violation_rate.mean()),
         "achieved_spread": np.std(res.achieved, axis=0).tolist(),
         "skills_spread": np.std(skills, axis=0).tolist(),
+        # does the achieved feature follow the skill at all (1: in step, 0: unrelated)?
+        "correlation": [
+            float(np.corrcoef(skills[:, d], res.achieved[:, d])[0, 1])
+            for d in range(skills.shape[1])
+        ],
+        "skill_values": skills.tolist(),
+        "achieved_values": res.achieved.tolist(),
     }
-    print("RESULT", json.dumps(out))
+    print("RESULT", json.dumps({k: v for k, v in out.items() if not k.endswith("_values")}))
     if a.out is not None:
         a.out.write_text(json.dumps(out, indent=1))
 

@@ -54,6 +54,12 @@ class UpArgs:
     """Also log every service's stats to Weights & Biases (needs the wandb extra)."""
     wandb_mode: Literal["offline", "online"] = "offline"
     """offline: W&B files under the run directory, uploaded later by ``wandb sync``."""
+    learner_threads: int = 0
+    """torch threads of the learner on a CPU. 0: ``URSA_TORCH_THREADS`` when set; otherwise
+    every core while the collectors are paced (``--core.collector.pace wait``, the default:
+    simulated collectors wait for the learner and use a fraction of a core), 1 when they run
+    free (``-- --core.collector.pace free``), since torch's threads collapse on cores the
+    collectors hold (docs/learner.md, "Threads")."""
     grace_s: float = 5.0
     """Seconds between SIGTERM and SIGKILL at shutdown."""
     extra: tuple[str, ...] = ()
@@ -124,6 +130,23 @@ def resolve_preset(preset: str, env: str, cuda: bool | None = None) -> tuple[str
     return ("paper", ["--core.learner.device", "cuda"]) if cuda else ("cpu", [])
 
 
+def learner_threads(
+    requested: int, extra: tuple[str, ...], environ: dict[str, str], cores: int
+) -> int:
+    """The learner's torch threads under ``ursa up`` (see ``UpArgs.learner_threads``)."""
+    if requested > 0:
+        return requested
+    if environ.get("URSA_TORCH_THREADS"):
+        return int(environ["URSA_TORCH_THREADS"])
+    args = list(extra)
+    free = any(
+        a == "--core.collector.pace=free"
+        or (a == "--core.collector.pace" and args[i + 1 : i + 2] == ["free"])
+        for i, a in enumerate(args)
+    )
+    return 1 if free else max(1, cores)
+
+
 def up(args: UpArgs) -> int:
     """Run the stack until Ctrl-C/SIGTERM or until the router dies; returns an exit code."""
     name, implied = resolve_preset(args.preset, args.env)
@@ -159,7 +182,8 @@ def up(args: UpArgs) -> int:
         stopping.set()
     else:
         start("repertoire", "services.repertoire", [])
-        start("learner", "services.learner", [])
+        threads = learner_threads(args.learner_threads, args.extra, env, os.cpu_count() or 1)
+        start("learner", "services.learner", ["--torch-threads", str(threads)])
         for i in range(args.collectors):
             start(
                 f"collector-{i}",

@@ -95,3 +95,20 @@ def test_up_auto_preset() -> None:
     assert resolve_preset("auto", "point", cuda=True) == ("point", [])
     assert resolve_preset("small", "a1", cuda=True) == ("small", [])
     assert cli.parse(["up"]) == UpArgs(preset="auto")
+
+
+def test_up_learner_threads() -> None:
+    from services.launcher import learner_threads
+
+    # paced collectors (the default) leave the cores to the learner
+    assert learner_threads(0, (), {}, cores=2) == 2
+    assert learner_threads(0, ("--core.learner.imag-starts", "128"), {}, cores=8) == 8
+    # free collectors hold cores: one thread (torch's threads collapse beside them)
+    assert learner_threads(0, ("--core.collector.pace", "free"), {}, cores=8) == 1
+    assert learner_threads(0, ("--core.collector.pace=free",), {}, cores=8) == 1
+    assert learner_threads(0, ("--core.collector.pace", "wait"), {}, cores=4) == 4
+    # the environment, then the flag, win
+    assert learner_threads(0, (), {"URSA_TORCH_THREADS": "3"}, cores=8) == 3
+    assert (
+        learner_threads(5, ("--core.collector.pace", "free"), {"URSA_TORCH_THREADS": "3"}, 8) == 5
+    )
