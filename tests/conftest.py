@@ -12,6 +12,11 @@ import pytest
 # URSA_STRICT=1 (CI): a skip fails
 pytest_plugins = ["tests.strict", "pytester"]
 
+# The suite's stacks share two cores with background trainings: a learner started by `ursa up`
+# (which would take every core beside paced collectors) keeps one torch thread, as every other
+# service does, since torch's threads collapse on cores that other processes hold.
+os.environ.setdefault("URSA_TORCH_THREADS", "1")
+
 
 _training: dict[str, Any] = {}
 
