@@ -100,7 +100,8 @@ def main() -> None:
     ceiling = peak * 1e9 / total
     threads = torch.get_num_threads()
     print(f"preset {args.preset}, float32, {IMAG_STARTS} starts x 15, {threads} thread(s)")
-    print(f"{'network':<16}{'GFLOP':>9}{'share':>8}")
+    # a network run from another's method (not its forward) counts under both names
+    print(f"{'network':<16}{'GFLOP':>9}{'share':>8}  (by outermost network; may overlap)")
     for name, f in sorted(flops.items(), key=lambda kv: -kv[1]):
         print(f"{name:<16}{f / 1e9:>9.2f}{100 * f / total:>7.1f}%")
     print(f"{'total':<16}{total / 1e9:>9.2f}")
