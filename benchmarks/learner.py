@@ -48,7 +48,8 @@ from ursa.networks import resolve_compute_dtype
 from ursa.repertoire import Repertoire, RepertoireConfig
 from ursa.threads import limit_threads
 
-OBS, ACT, VAE_IN, D = 46, 12, 13, 3
+OBS, ACT = reference.OBS, reference.ACT  # the A1's sizes, one place for both learners
+VAE_IN, D = 13, 3
 IMAG_STARTS = 512
 """Imagination starts per update at every preset here (the issue's fixed work per update)."""
 PHASES = ("wm", "imagination", "actor", "critics", "multipliers", "vae")
@@ -57,17 +58,13 @@ REF = "sheeprl-dv3"
 
 
 def _batch(cfg: LearnerConfig, rng: np.random.Generator) -> dict[str, np.ndarray]:
+    """The reference's synthetic batch plus URSA's cost and feature inputs (same draws as
+    before the reference existed: obs, action, reward, cost, features)."""
     b, t = cfg.batch_size, cfg.seq_len
-    first = np.zeros((b, t), bool)
-    first[:, 0] = True
-    return {
-        "obs": rng.normal(size=(b, t, OBS)).astype(np.float32),
-        "action": rng.uniform(-1, 1, size=(b, t, ACT)).astype(np.float32),
-        "reward": rng.normal(size=(b, t)).astype(np.float32),
-        "cost": rng.normal(size=(b, t)).astype(np.float32),
-        "features": rng.normal(size=(b, t, VAE_IN)).astype(np.float32),
-        "is_first": first,
-    }
+    out = reference.synthetic_batch(cfg, rng)
+    out["cost"] = rng.normal(size=(b, t)).astype(np.float32)
+    out["features"] = rng.normal(size=(b, t, VAE_IN)).astype(np.float32)
+    return out
 
 
 def _snapshot(learner: Learner, rng: np.random.Generator) -> SkillSnapshot:

@@ -409,8 +409,9 @@ def reference_sizes(config: LearnerConfig | None = None, device: str = "cpu") ->
     return ReferenceAgent.build(config, device).sizes()
 
 
-def _batch(c: LearnerConfig, rng: np.random.Generator) -> dict[str, np.ndarray]:
-    """A synthetic batch shaped like ``benchmarks/learner.py``'s (the fields sheeprl uses)."""
+def synthetic_batch(c: LearnerConfig, rng: np.random.Generator) -> dict[str, np.ndarray]:
+    """A synthetic A1-shaped batch (B, T, ...) of the fields both learners read: obs, action,
+    reward, is_first (``benchmarks/learner.py`` adds URSA's cost and features)."""
     b, t = c.batch_size, c.seq_len
     first = np.zeros((b, t), bool)
     first[:, 0] = True
@@ -434,7 +435,7 @@ def measure_reference(
     c = config or LearnerConfig.small()
     cuda = device.startswith("cuda")
     rng = np.random.default_rng(0)
-    batches = [_batch(c, rng) for _ in range(min(updates + warmup, 4))]
+    batches = [synthetic_batch(c, rng) for _ in range(min(updates + warmup, 4))]
     devices = [torch.device(device).index or 0] if cuda else []
     with torch.random.fork_rng(devices=devices):
         torch.manual_seed(c.seed)

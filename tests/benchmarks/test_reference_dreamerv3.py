@@ -67,7 +67,7 @@ def test_one_timed_update_trains_every_part() -> None:
     agent = ref.ReferenceAgent.build(TINY, "cpu")
     parts = (agent.world_model, agent.actor, agent.critic)
     before = [[p.detach().clone() for p in m.parameters()] for m in parts]
-    agent.train_step(ref._batch(TINY, np.random.default_rng(0)))
+    agent.train_step(ref.synthetic_batch(TINY, np.random.default_rng(0)))
     for m, old in zip(parts, before, strict=True):
         assert any(not torch.equal(p, q) for p, q in zip(m.parameters(), old, strict=True))
 
