@@ -48,7 +48,7 @@ from ursa.agent import (
 )
 from ursa.distributions import normal_entropy, tanh_normal_logp, two_hot_loss2, two_hot_mean
 from ursa.learner_config import LearnerConfig
-from ursa.networks import compute_dtype, resolve_compute_dtype
+from ursa.networks import compute_dtype, resolve_compute_dtype, weight_casts_cached
 from ursa.policy import pack_policy_weights
 from ursa.rundir import atomic_write
 from ursa.vae import VAE
@@ -261,9 +261,9 @@ class Learner:
         times: dict[str, float] = {}
         metrics: dict[str, torch.Tensor | float] = {}
         with compute_dtype(self.compute):
-            with self._phase("wm", times):
+            with self._phase("wm", times), weight_casts_cached(self.device):
                 h, z = self._world_model_step(self._tensors(batch), metrics, skills)
-            with self._phase("imagination", times):
+            with self._phase("imagination", times), weight_casts_cached(self.device):
                 ctx = self._skill_context(h.shape[0], skills)
                 losses = self._imagination_losses(h, z, ctx, metrics)
             with self._phase("actor", times):

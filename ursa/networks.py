@@ -29,6 +29,21 @@ def compute_dtype(dtype: torch.dtype | None) -> Iterator[None]:
         _COMPUTE.reset(token)
 
 
+@contextlib.contextmanager
+def weight_casts_cached(device: torch.device) -> Iterator[None]:
+    """Inside, each weight is cast to the compute dtype once, on its first use, instead of at
+    every layer call (torch autocast's cast cache lives until the outermost autocast region
+    ends; each network call opens and closes its own, so without this outer, disabled region
+    the recurrent cells recast their weights at every step: T observe and H imagine steps).
+    A weight changed in place inside (an optimiser step) keeps its stale cast: no forward pass
+    may read a weight after its step in the same region. No effect under float32."""
+    if _COMPUTE.get() is None:
+        yield
+        return
+    with torch.autocast(device.type, dtype=_COMPUTE.get(), enabled=False):
+        yield
+
+
 def _autocast(x: torch.Tensor) -> contextlib.AbstractContextManager[object]:
     dtype = _COMPUTE.get()
     if dtype is None:

@@ -22,6 +22,7 @@ from ursa.networks import (
     compute_dtype,
     cpu_has_bf16,
     resolve_compute_dtype,
+    weight_casts_cached,
 )
 
 torch.set_num_threads(1)
@@ -111,3 +112,35 @@ def test_bf16_checkpoint_resumes_bit_for_bit(tmp_path: Path) -> None:
         assert {k: v for k, v in m1.items() if not k.startswith("time/")} == {
             k: v for k, v in m2.items() if not k.startswith("time/")
         }
+
+
+def test_weight_casts_cached_casts_each_weight_once_per_region() -> None:
+    """Inside ``weight_casts_cached`` a weight's bfloat16 copy is made on its first use and
+    reused: a weight changed in place afterwards is not seen (the documented caveat, and the
+    proof that the cast is cached); outside, every call casts again. Under float32 it does
+    nothing."""
+    torch.manual_seed(0)
+    cell = GRUCell(8, 16)
+    x, h = torch.randn(4, 8), torch.randn(4, 16)
+    cpu = torch.device("cpu")
+    with compute_dtype(torch.bfloat16):
+        with weight_casts_cached(cpu):
+            first = cell(x, h)
+            with torch.no_grad():
+                cell.linear.weight.add_(
+                    torch.randn_like(cell.linear.weight)
+                )  # not a scale: LayerNorm follows
+            stale = cell(x, h)
+        fresh = cell(x, h)
+        with weight_casts_cached(cpu):
+            again = cell(x, h)
+    assert torch.equal(first, stale)
+    assert not torch.allclose(first, fresh)
+    assert torch.equal(fresh, again)
+    with weight_casts_cached(cpu):  # float32: no region, the change is seen at once
+        a = cell(x, h)
+        with torch.no_grad():
+            cell.linear.weight.add_(torch.randn_like(cell.linear.weight))
+        b = cell(x, h)
+    assert not torch.allclose(a, b)
+    assert a.dtype == b.dtype == torch.float32
