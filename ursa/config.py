@@ -116,7 +116,7 @@ TRAIN_STEPS = {"point": 12_000, "cpu": 20_000}
 updates at train_ratio 32. Safe from (updates): 750 / 1062 / 688 (seeds 0–2, EPYC, bf16),
 688 / 750 (seeds 0 / 1, Xeon with AMX, bf16 and float32 alike for seed 0); at 1000 updates a
 seed-0 run on a Xeon without bf16 was not yet safe (violation 0.579 over its last 2000 steps, CI
-of 2026-12-04), so the budget keeps a margin of 250 updates past the latest seen (docs/NOTES.md)."""
+of 2026-12-04), so the budget keeps ~190 updates past the latest seen (docs/NOTES.md)."""
 
 
 def _feature_dims(env: str, feature: str) -> tuple[int, int | None]:

@@ -37,10 +37,11 @@ def weight_casts_cached(device: torch.device) -> Iterator[None]:
     the recurrent cells recast their weights at every step: T observe and H imagine steps).
     A weight changed in place inside (an optimiser step) keeps its stale cast: no forward pass
     may read a weight after its step in the same region. No effect under float32."""
-    if _COMPUTE.get() is None:
+    dtype = _COMPUTE.get()
+    if dtype is None:
         yield
         return
-    with torch.autocast(device.type, dtype=_COMPUTE.get(), enabled=False):
+    with torch.autocast(device.type, dtype=dtype, enabled=False):
         yield
 
 
