@@ -77,6 +77,13 @@ def actor_objective(
     )
 
 
+def any_ahead(flag: torch.Tensor) -> torch.Tensor:
+    """Whether ``flag`` (H, N) holds at step t or at any later step: out[t] = max_{k ≥ t} flag[k]
+    (H, N), as float."""
+    f = flag.float()
+    return torch.flip(torch.cummax(torch.flip(f, (0,)), dim=0).values, (0,))
+
+
 def percentile_update(
     low: torch.Tensor, high: torch.Tensor, x: torch.Tensor, rate: float
 ) -> tuple[torch.Tensor, torch.Tensor]:

@@ -40,6 +40,7 @@ from ursa.agent import (
     Multiplier,
     ReturnNorm,
     actor_objective,
+    any_ahead,
     frozen_copy,
     joint_input,
     lambda_return,
@@ -425,6 +426,8 @@ class Learner:
             # multipliers rise where their constraint is violated and fall where it holds
             viol1 = (dist.detach() > delta).float()
             viol2 = (ret_c.detach() > 0.0).float()
+            if c.lambda2_label == "step":
+                viol2 = torch.maximum(viol2, any_ahead(pred["cost"].detach() > 0.0))
             bce = nn.functional.binary_cross_entropy_with_logits
             l1 = (weight * bce(logit1, viol1, reduction="none")).mean()
             l2 = (weight * bce(logit2, viol2, reduction="none")).mean()

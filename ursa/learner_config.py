@@ -17,6 +17,7 @@ Mode = Literal["ursa", "ursa-supervised", "daydreamer"]
 ActorGrad = Literal["dynamics", "reinforce"]
 ComputeDtype = Literal["float32", "bfloat16", "auto"]
 PhiMetric = Literal["skill", "symlog"]
+Lambda2Label = Literal["return", "step"]
 LearnerPresetName = Literal["tiny", "point", "small", "cpu", "paper"]
 
 
@@ -137,6 +138,13 @@ class LearnerConfig:
     # --- Lagrange multipliers ------------------------------------------------------------------
     lagrange_units: int = 64
     """Width of the single hidden layer of λ1(s, z) and λ2(s, z)."""
+    lambda2_label: Lambda2Label = "return"
+    """What λ2(s, z) is trained to predict at an imagined state: ``return`` (QDAC-MB), that the
+    λ-return of the cost from there is positive; ``step``, that it is positive or that any
+    imagined step from there to the horizon has a positive cost. With a cost that is negative on
+    safe states (the A1 tasks), safe margins pay for violations in the return, and the
+    ``return`` label stays 0 on starts that fall within the horizon (docs/learner.md). For tasks
+    whose cost is positive only when unsafe (the posture task, the point env)."""
 
     # --- optimisers ----------------------------------------------------------------------------
     model_lr: float = 1e-4
@@ -191,6 +199,8 @@ class LearnerConfig:
             raise ValueError("delta_scale must lie in (0, 1]")
         if not 0.0 <= self.replay_unsafe <= 1.0:
             raise ValueError("replay_unsafe must lie in [0, 1]")
+        if self.lambda2_label not in ("return", "step"):
+            raise ValueError(f"unknown lambda2_label {self.lambda2_label!r}")
         if self.actor_mean_bound < 0.0:
             raise ValueError("actor_mean_bound must be ≥ 0 (0: off)")
 

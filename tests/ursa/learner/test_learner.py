@@ -141,6 +141,29 @@ def test_delta_scale_tightens_the_skill_constraint() -> None:
         dataclasses.replace(MICRO, delta_scale=0.0)
 
 
+def test_lambda2_step_label_adds_unsafe_steps_ahead() -> None:
+    """``lambda2_label="step"`` labels a state unsafe when its cost return is positive or an
+    imagined step ahead has a positive cost: on the same batch and seed the imagined rollout and
+    the returns are the same, and the labelled fraction can only grow; it does here, since the
+    untrained model predicts costs of both signs."""
+    replay = _random_replay()
+    snap = _snapshot(np.random.default_rng(0).uniform(-1, 1, size=(300, 2)))
+    batch = replay.sample(MICRO.batch_size, MICRO.seq_len, np.random.default_rng(0))
+    out = {}
+    for label in ("return", "step"):
+        cfg = dataclasses.replace(
+            MICRO,
+            mode="ursa-supervised",
+            lambda2_label=label,  # type: ignore[arg-type]
+        )
+        out[label] = Learner(cfg, 6, 2, 2).train_step(batch, snap)
+    assert out["step"]["imag/cost_return"] == pytest.approx(out["return"]["imag/cost_return"])
+    assert out["step"]["lambda2/violated"] > out["return"]["lambda2/violated"]
+    assert out["step"]["lambda1/violated"] == pytest.approx(out["return"]["lambda1/violated"])
+    with pytest.raises(ValueError, match="lambda2_label"):
+        dataclasses.replace(MICRO, lambda2_label="any")  # type: ignore[arg-type]
+
+
 @pytest.mark.parametrize("actor_grad", ["dynamics", "reinforce"])
 def test_actor_mean_bound_penalises_a_saturated_mean(actor_grad: str) -> None:
     """An actor whose pre-tanh mean is 4 everywhere (output weights 0, bias 4): with

@@ -8,7 +8,13 @@ import numpy as np
 import pytest
 import torch
 
-from ursa.agent import actor_objective, lambda_return, mahalanobis, percentile_update
+from ursa.agent import (
+    actor_objective,
+    any_ahead,
+    lambda_return,
+    mahalanobis,
+    percentile_update,
+)
 from ursa.distributions import (
     categorical_kl,
     kl_balance,
@@ -157,6 +163,17 @@ def test_actor_objective_hand_values() -> None:
     assert float(actor_objective(v, dist, delta, cost, one, zero)) == pytest.approx(-2.0)
     assert float(actor_objective(v, dist, delta, cost, zero, one)) == pytest.approx(0.5)
     assert float(actor_objective(v, dist, delta, cost, one, one)) == pytest.approx(0.5)
+
+
+def test_any_ahead_hand_worked() -> None:
+    """Column 0 flags step 2 only: steps 0–2 see it ahead, step 3 does not; column 1 has no
+    flag; column 2 flags the last step, which every step sees."""
+    flag = torch.tensor(
+        [[False, False, False], [False, False, False], [True, False, False], [False, False, True]]
+    )
+    want = torch.tensor([[1.0, 0.0, 1.0], [1.0, 0.0, 1.0], [1.0, 0.0, 1.0], [0.0, 0.0, 1.0]])
+    assert torch.equal(any_ahead(flag), want)
+    assert any_ahead(flag).dtype == torch.float32
 
 
 def test_mahalanobis_matches_scipy() -> None:
