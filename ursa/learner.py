@@ -430,7 +430,8 @@ class Learner:
                 viol2 = torch.maximum(viol2, any_ahead(pred["cost"].detach() > 0.0))
             bce = nn.functional.binary_cross_entropy_with_logits
             l1 = (weight * bce(logit1, viol1, reduction="none")).mean()
-            l2 = (weight * bce(logit2, viol2, reduction="none")).mean()
+            pw2 = torch.tensor(c.lambda2_pos_weight, device=self.device)
+            l2 = (weight * bce(logit2, viol2, reduction="none", pos_weight=pw2)).mean()
             lam_loss = l1 + l2
             metrics.update(
                 {

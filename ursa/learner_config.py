@@ -145,6 +145,11 @@ class LearnerConfig:
     safe states (the A1 tasks), safe margins pay for violations in the return, and the
     ``return`` label stays 0 on starts that fall within the horizon (docs/learner.md). For tasks
     whose cost is positive only when unsafe (the posture task, the point env)."""
+    lambda2_pos_weight: float = 1.0
+    """Weight of λ2's positive (unsafe) labels in its cross-entropy (``pos_weight``): λ2 then
+    settles at w·p / (w·p + 1 − p) instead of p, the probability of its label. Once the policy
+    is safe, p falls and λ2 with it (measured on the A1, docs/learner.md); w > 1 keeps the
+    safety term's weight up at a low p. 1: QDAC-MB's rule."""
 
     # --- optimisers ----------------------------------------------------------------------------
     model_lr: float = 1e-4
@@ -201,6 +206,8 @@ class LearnerConfig:
             raise ValueError("replay_unsafe must lie in [0, 1]")
         if self.lambda2_label not in ("return", "step"):
             raise ValueError(f"unknown lambda2_label {self.lambda2_label!r}")
+        if not self.lambda2_pos_weight > 0.0:
+            raise ValueError("lambda2_pos_weight must be > 0")
         if self.actor_mean_bound < 0.0:
             raise ValueError("actor_mean_bound must be ≥ 0 (0: off)")
 

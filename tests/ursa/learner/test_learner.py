@@ -164,6 +164,27 @@ def test_lambda2_step_label_adds_unsafe_steps_ahead() -> None:
         dataclasses.replace(MICRO, lambda2_label="any")  # type: ignore[arg-type]
 
 
+def test_lambda2_pos_weight_scales_the_unsafe_labels() -> None:
+    """λ2's loss is Σ γ^t [w·y·softplus(−x) + (1 − y)·softplus(x)]: on the same batch and seed
+    (same rollout, labels and logits) it is affine in w with a positive slope, and λ1's loss
+    does not move."""
+    replay = _random_replay()
+    snap = _snapshot(np.random.default_rng(0).uniform(-1, 1, size=(300, 2)))
+    batch = replay.sample(MICRO.batch_size, MICRO.seq_len, np.random.default_rng(0))
+    loss1, loss2 = {}, {}
+    for w in (1.0, 2.0, 3.0):
+        cfg = dataclasses.replace(MICRO, mode="ursa-supervised", lambda2_pos_weight=w)
+        m = Learner(cfg, 6, 2, 2).train_step(batch, snap)
+        loss1[w], loss2[w] = m["lambda1/loss"], m["lambda2/loss"]
+    assert m["lambda2/violated"] > 0.0
+    slope = loss2[2.0] - loss2[1.0]
+    assert slope > 0.0
+    assert loss2[3.0] - loss2[2.0] == pytest.approx(slope, rel=1e-3)
+    assert loss1[1.0] == pytest.approx(loss1[3.0])
+    with pytest.raises(ValueError, match="lambda2_pos_weight"):
+        dataclasses.replace(MICRO, lambda2_pos_weight=0.0)
+
+
 @pytest.mark.parametrize("actor_grad", ["dynamics", "reinforce"])
 def test_actor_mean_bound_penalises_a_saturated_mean(actor_grad: str) -> None:
     """An actor whose pre-tanh mean is 4 everywhere (output weights 0, bias 4): with
