@@ -197,6 +197,10 @@ class Learner:
             else None
         )
         self.vae_opt = adam([self.vae], c.vae_lr, c.model_eps) if self.vae is not None else None
+        # None at w = 1: the plain cross-entropy, without a per-update tensor or multiply
+        self._lam2_pos_weight = (
+            None if c.lambda2_pos_weight == 1.0 else torch.tensor(c.lambda2_pos_weight, device=dev)
+        )
         self.gen = torch.Generator(device=dev).manual_seed(c.seed)
         self.np_rng = np.random.default_rng(c.seed)
         self.updates = 0
@@ -430,7 +434,7 @@ class Learner:
                 viol2 = torch.maximum(viol2, any_ahead(pred["cost"].detach() > 0.0))
             bce = nn.functional.binary_cross_entropy_with_logits
             l1 = (weight * bce(logit1, viol1, reduction="none")).mean()
-            pw2 = torch.tensor(c.lambda2_pos_weight, device=self.device)
+            pw2 = self._lam2_pos_weight
             l2 = (weight * bce(logit2, viol2, reduction="none", pos_weight=pw2)).mean()
             lam_loss = l1 + l2
             metrics.update(
