@@ -100,6 +100,7 @@ def main() -> None:
             "entropy": mean("actor/entropy"),
             "lambda1": mean("lambda1/mean"),
             "lambda2": mean("lambda2/mean"),
+            "lambda2_floor": mean("lambda2/floor"),
             "within_delta": mean("imag/within_delta"),
             "cost_return": mean("imag/cost_return"),
             "vae_version": lp.learner.vae_version,

@@ -52,6 +52,7 @@ from ursa.learner_config import LearnerConfig
 from ursa.networks import compute_dtype, resolve_compute_dtype, weight_casts_cached
 from ursa.policy import pack_policy_weights
 from ursa.rundir import atomic_write
+from ursa.safety_floor import floor_step
 from ursa.vae import VAE
 from ursa.world_model import WorldModel
 
@@ -207,6 +208,8 @@ class Learner:
         """Train steps done."""
         self.vae_version = 0
         """Published encoder versions (0: the initial encoder)."""
+        self.lam2_floor = 0.0
+        """The integrating floor under λ2 (``lambda2_floor_lr``; 0 while it is off)."""
 
     # --- helpers -------------------------------------------------------------------------------
 
@@ -251,11 +254,16 @@ class Learner:
         times[name] = time.perf_counter() - t0
 
     def train_step(
-        self, batch: dict[str, np.ndarray], skills: SkillSnapshot | None = None
+        self,
+        batch: dict[str, np.ndarray],
+        skills: SkillSnapshot | None = None,
+        violation_rate: float | None = None,
     ) -> dict[str, float]:
         """One update on a replay batch (dict of (B, T, ...) arrays with ``is_first``) with the
-        repertoire snapshot ``skills`` (required unless ``daydreamer``). Returns scalar metrics,
-        including the seconds spent in each phase (``time/*``).
+        repertoire snapshot ``skills`` (required unless ``daydreamer``). ``violation_rate``: the
+        acting policy's recent real violation rate (``ursa.safety_floor.ema_rate``), which
+        moves λ2's floor when ``lambda2_floor_lr`` > 0 (None: the floor stays). Returns scalar
+        metrics, including the seconds spent in each phase (``time/*``).
 
         Each phase owns its loss and its optimiser step: world model, imagination (returns and
         the losses of actor, critics and multipliers), actor, critics, multipliers, VAE.
@@ -265,6 +273,17 @@ class Learner:
             raise ValueError(f"mode {c.mode!r} needs a SkillSnapshot")
         times: dict[str, float] = {}
         metrics: dict[str, torch.Tensor | float] = {}
+        if c.lambda2_floor_lr > 0.0 and c.uses_skills:
+            if violation_rate is not None:
+                self.lam2_floor = floor_step(
+                    self.lam2_floor,
+                    violation_rate,
+                    c.lambda2_floor_target,
+                    c.lambda2_floor_lr,
+                    c.lambda2_floor_max,
+                )
+                metrics["lambda2/real_rate"] = float(violation_rate)
+            metrics["lambda2/floor"] = self.lam2_floor
         with compute_dtype(self.compute):
             with self._phase("wm", times), weight_casts_cached(self.device):
                 h, z = self._world_model_step(self._tensors(batch), metrics, skills)
@@ -413,6 +432,10 @@ class Learner:
             logit1 = self.lam1.logit(xd)
             logit2 = self.lam2.logit(xd)
             lam1, lam2 = torch.sigmoid(logit1).detach(), torch.sigmoid(logit2).detach()
+            lam2_net = lam2
+            if self.lam2_floor > 0.0:
+                # the actor's weight of the cost; λ2's own loss still trains the network
+                lam2 = lam2.clamp(min=self.lam2_floor)
             objective = actor_objective(objective, dist, delta, ret_c / scale_c, lam1, lam2)
             if reinforce:
                 with torch.no_grad():
@@ -442,7 +465,8 @@ class Learner:
                     "critic/sf": (weight * sf_loss).mean().detach(),
                     "critic/cost": (weight * cost_loss).mean().detach(),
                     "lambda1/mean": lam1.mean(),
-                    "lambda2/mean": lam2.mean(),
+                    "lambda2/mean": lam2_net.mean(),
+                    "lambda2/actor_weight": lam2.mean(),
                     "lambda1/loss": l1.detach(),
                     "lambda2/loss": l2.detach(),
                     "lambda1/violated": viol1.mean(),
@@ -629,6 +653,7 @@ class Learner:
             "optimizers": {k: o.state_dict() for k, o in self._optimizers().items()},
             "updates": self.updates,
             "vae_version": self.vae_version,
+            "lam2_floor": self.lam2_floor,
             "torch_generator": self.gen.get_state(),
             "numpy_rng": _np_state_to_plain(self.np_rng.bit_generator.state),
         }
@@ -649,6 +674,7 @@ class Learner:
             o.load_state_dict(state["optimizers"][k])
         self.updates = int(state["updates"])
         self.vae_version = int(state["vae_version"])
+        self.lam2_floor = float(state.get("lam2_floor", 0.0))  # absent before the floor
         self.gen.set_state(state["torch_generator"].cpu())
         self.np_rng.bit_generator.state = _np_state_from_plain(state["numpy_rng"])
 

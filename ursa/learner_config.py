@@ -150,6 +150,20 @@ class LearnerConfig:
     settles at w·p / (w·p + 1 − p) instead of p, the probability of its label. Once the policy
     is safe, p falls and λ2 with it (measured on the A1, docs/learner.md); w > 1 keeps the
     safety term's weight up at a low p. 1: QDAC-MB's rule."""
+    lambda2_floor_lr: float = 0.0
+    """Step of an integrating floor under λ2 (a classic Lagrange multiplier on the acting
+    policy's real violation rate): each update, floor ← clip(floor + η·(rate − target), 0,
+    ``lambda2_floor_max``), and the actor weighs the cost with max(λ2(s, z), floor). A
+    cross-entropy λ2 estimates P(violation | s, z), which a safe policy drives down, so it lets
+    go once the robot is safe; the floor only falls while the real rate stays under the target.
+    0: off (QDAC-MB)."""
+    lambda2_floor_target: float = 0.02
+    """The violation rate (unsafe steps per env step of the acting policy) the floor aims at."""
+    lambda2_floor_max: float = 1.0
+    """Upper bound of the floor."""
+    lambda2_floor_window: int = 1000
+    """Env steps of the exponential average of the acting policy's violation rate that drives
+    the floor (time constant; collectors pooled)."""
 
     # --- optimisers ----------------------------------------------------------------------------
     model_lr: float = 1e-4
@@ -208,6 +222,14 @@ class LearnerConfig:
             raise ValueError(f"unknown lambda2_label {self.lambda2_label!r}")
         if not self.lambda2_pos_weight > 0.0:
             raise ValueError("lambda2_pos_weight must be > 0")
+        if self.lambda2_floor_lr < 0.0:
+            raise ValueError("lambda2_floor_lr must be ≥ 0 (0: off)")
+        if not 0.0 <= self.lambda2_floor_target < 1.0:
+            raise ValueError("lambda2_floor_target must be in [0, 1)")
+        if not 0.0 <= self.lambda2_floor_max <= 1.0:
+            raise ValueError("lambda2_floor_max must be in [0, 1]")
+        if self.lambda2_floor_window < 1:
+            raise ValueError("lambda2_floor_window must be ≥ 1")
         if self.actor_mean_bound < 0.0:
             raise ValueError("actor_mean_bound must be ≥ 0 (0: off)")
 

@@ -32,6 +32,7 @@ from ursa.learner_config import LearnerConfig
 from ursa.policy import Policy
 from ursa.repertoire import Repertoire, RepertoireConfig
 from ursa.replay import Replay
+from ursa.safety_floor import ema_rate
 
 
 @dataclass(frozen=True)
@@ -168,6 +169,8 @@ class SerialLoop:
             self.rng,
         )
         self.unsafe_steps = 0
+        self.violation_rate: float | None = None
+        """Exponential average of the stored steps' violation (``ursa.safety_floor``)."""
         self.history: list[dict[str, float]] = []
         self._snapshot: SkillSnapshot | None = None
 
@@ -189,6 +192,10 @@ class SerialLoop:
     def _store(self, chunk: Chunk) -> None:
         """A finished chunk into the replay, its safe features into the repertoire."""
         self.replay.add(self.stream_id, chunk.data, chunk.first_step)
+        if len(chunk.data["safe"]):
+            self.violation_rate = ema_rate(
+                self.violation_rate, ~chunk.data["safe"], self.learner_config.lambda2_floor_window
+            )
         rep = self.repertoire
         x = chunk.archive_features(self.config.archive_window).astype(np.float64)
         if rep is not None and len(x):
@@ -233,7 +240,7 @@ class SerialLoop:
             if self._snapshot is None or self.learner.updates % c.snapshot_every == 0:
                 self._snapshot = self.snapshot()
             batch = self.replay.sample(lc.batch_size, lc.seq_len, self.rng, lc.replay_unsafe)
-            metrics = self.learner.train_step(batch, self._snapshot)
+            metrics = self.learner.train_step(batch, self._snapshot, self.violation_rate)
             metrics["env_steps"] = float(self.env_steps)
             self.history.append(metrics)
             done += 1

@@ -48,6 +48,7 @@ from ursa.learner import Learner, SkillSnapshot
 from ursa.pace import default_slack, insert_budget
 from ursa.replay import Replay
 from ursa.rundir import TEMP_SUFFIX, RunDir, atomic_write
+from ursa.safety_floor import ema_rate
 from ursa.threads import limit_threads
 
 CHUNK_FIELDS = ("obs", "action", "reward", "cost", "safe", "features", "skill")
@@ -131,6 +132,8 @@ class LearnerService:
         self.state_path = RunDir(args.run.dir).learner_state
         self.samples = 0
         """Transitions sampled for training so far (for the replay ratio)."""
+        self.violation_rate: float | None = None
+        """Exponential average of the admitted steps' violation (``ursa.safety_floor``)."""
         self._pace_base: tuple[int, int] | None = None
         """(inserted, samples) at this process's first update: the rate limiter's origin."""
         self.weights_version = 0
@@ -364,6 +367,12 @@ class LearnerService:
             self.rt.drops.add("incompatible")
             self.log.warning("refused chunk from %s: %s", chunk.collector_id, e)
             return False
+        if n:  # the collectors' pooled violation rate, λ2's floor's input
+            self.violation_rate = ema_rate(
+                self.violation_rate,
+                ~arrays["safe"].astype(bool),
+                self.cfg.learner.lambda2_floor_window,
+            )
         if write:
             self._persist(chunk)
             self.lags.append(max(0, self.weights_version - int(chunk.policy_version)))
@@ -440,7 +449,7 @@ class LearnerService:
         with self._replay_lock:
             batch = self.replay.sample(c.batch_size, c.seq_len, self.rng, c.replay_unsafe)
         before = self.learner.vae_version
-        metrics = self.learner.train_step(batch, snap)
+        metrics = self.learner.train_step(batch, snap, self.violation_rate)
         if self._pace_base is None:
             self._pace_base = (self.ledger.total_steps, self.samples)
         self.samples += c.batch_size * c.seq_len

@@ -9,6 +9,7 @@ import time
 from pathlib import Path
 
 import pytest
+import torch
 
 from proto import ursa_pb2 as pb
 from services.common.bus import Presence
@@ -85,9 +86,16 @@ def test_collector_killed_leaves_others_running_and_rejoins_with_latest_weights(
         session.close()
 
 
+# λ2's floor on, aiming at no violation at all: it rises at every update while the collectors'
+# pooled violation rate (random actions on the point env: ~0.1) is above 0
+FLOOR_ARGS = ("--core.learner.lambda2-floor-lr", "0.05", "--core.learner.lambda2-floor-target", "0")
+
+
 def test_learner_killed_resumes_from_checkpoint_with_its_replay(tmp_path: Path) -> None:
     with running_stack(tmp_path) as st:
-        _start(st)
+        st.start_training(
+            collectors=2, learner=(*LEARNER_ARGS, *FLOOR_ARGS), collector=COLLECTOR_ARGS
+        )
         session = st.session()
         w = StatsWatcher(session, st.topics)
         ckpt = st.run_dir / "checkpoints" / "learner.pt"
@@ -104,9 +112,11 @@ def test_learner_killed_resumes_from_checkpoint_with_its_replay(tmp_path: Path) 
         state = (st.run_dir / "checkpoints" / "learner_state.json").read_text()
         ckpt_updates = json.loads(state)["updates"]
         assert written > 0 and ckpt_updates > 0
+        ckpt_floor = float(torch.load(ckpt, weights_only=True)["lam2_floor"])
+        assert ckpt_floor > 0.0
 
         restarted_at = time.time()
-        st.start("learner", "services.learner", *LEARNER_ARGS)
+        st.start("learner", "services.learner", *LEARNER_ARGS, *FLOOR_ARGS)
 
         def restarted() -> object:
             s = w.get("learner", "main")  # stats of a process started after the restart
@@ -124,6 +134,10 @@ def test_learner_killed_resumes_from_checkpoint_with_its_replay(tmp_path: Path) 
             "training to go on",
             0.5,
         )
+        # the floor continues from the checkpoint (a fresh one would restart at 0 and be a few
+        # steps of 0.05 × rate high), driven by the rate of the replay read back from disk
+        assert _scalar(w, "learner", "main", "lambda2/floor") >= ckpt_floor
+        assert 0.0 < _scalar(w, "learner", "main", "lambda2/real_rate") < 1.0
         w.close()
         session.close()
 
