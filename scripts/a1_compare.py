@@ -18,15 +18,12 @@ import statistics
 from pathlib import Path
 from typing import Any
 
-LAST_S = 15 * 60
-"""The issue's safety window: the last 15 minutes of a run."""
+from a1_floor_figure import summarise  # the one definition of the last-15-minutes window
 
 
 def curve_summary(d: dict[str, Any]) -> dict[str, Any]:
     """Updates, minutes and violation windows of one ``a1_serial.py`` output."""
     rows = d["rows"]
-    end = rows[-1]["t"]
-    last = [r["violation_rate"] for r in rows if r["t"] > end - LAST_S]
     trained = [r for r in rows if r["updates"] > 0]
     safe_from = next((r["updates"] for r in trained if r["violation_rate"] <= 0.088), None)
     return {
@@ -34,7 +31,7 @@ def curve_summary(d: dict[str, Any]) -> dict[str, Any]:
         "updates": d["updates"],
         "env_steps": d["env_steps"],
         "minutes": round(d["seconds"] / 60, 1),
-        "violation_last_15_min": round(sum(last) / len(last), 4),
+        "violation_last_15_min": summarise(rows, d["seconds"])["violation_last_15_min"],
         "violation_max_after_safe": (
             None
             if safe_from is None
