@@ -39,6 +39,7 @@ def curve_summary(d: dict[str, Any]) -> dict[str, Any]:
         ),
         "first_safe_window_updates": safe_from,
         "rescues": rows[-1]["rescues"],
+        "learner_overrides": d.get("learner_overrides", {}),
     }
 
 
@@ -53,6 +54,7 @@ def main() -> None:
     ap.add_argument("--diversity", nargs="+", type=Path, default=[])
     ap.add_argument("--damage", type=Path, default=None)
     ap.add_argument("--machine", default="")
+    ap.add_argument("--label", default="", help="what the URSA runs set, for the figure's title")
     ap.add_argument("--json", type=Path, required=True)
     ap.add_argument("--png", type=Path, required=True)
     a = ap.parse_args()
@@ -85,9 +87,11 @@ def main() -> None:
         coverage.append(entry)
     out: dict[str, Any] = {
         "machine": a.machine,
+        "label": a.label,
         "commands": [
             "scripts/a1_serial.py --preset cpu --seed S --updates 100000 --minutes M "
-            "[--set mode='\"daydreamer\"'] --out RUN.json --run-dir RUN",
+            "[--set mode='\"daydreamer\"'] [--set LEARNER_OVERRIDES] --out RUN.json "
+            "--run-dir RUN (each run's overrides under training)",
             "ursa eval diversity URSA_RUN --baseline DD_RUN --skills 30 --out DIV",
             "ursa eval damage URSA_RUN... --baseline DD_RUN... --skills 10 --fresh 3 --out DMG",
         ],
@@ -143,7 +147,8 @@ def main() -> None:
     ax.set(
         xlabel="minutes (serial loop, one core each)",
         ylabel="violation rate per 1000 env steps",
-        title="A1 forward task: dashed the bar 0.088, dotted random actions 0.876",
+        title=f"A1 forward task{(' (URSA: ' + a.label + ')') if a.label else ''}: "
+        "dashed the bar 0.088, dotted random 0.876",
     )
     ax.legend(fontsize=7)
     fig.tight_layout()
