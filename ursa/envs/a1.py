@@ -90,6 +90,9 @@ class A1Config:
 
     task: str = "forward"
     """Reward/cost/safe set: ``forward`` (§5.2) or ``posture`` (§5.3)."""
+    forward_cost: str = "paper"
+    """Cost of the forward task: ``paper`` (c = 0.7 − r, §5.2) or ``upright`` (c = 0.7 − r_upr,
+    the safe set's margin; see ``tasks.forward_reward``). The posture task ignores it."""
     physics_hz: int = 500
     """Physics rate (Hz); must be a multiple of ``control_hz``. DayDreamer used 1000."""
     control_hz: int = 20
@@ -137,6 +140,10 @@ class A1Config:
     def __post_init__(self) -> None:
         if self.task not in tasks.TASKS:
             raise ValueError(f"task must be one of {tasks.TASKS}, got {self.task!r}")
+        if self.forward_cost not in tasks.FORWARD_COSTS:
+            raise ValueError(
+                f"forward_cost must be one of {tasks.FORWARD_COSTS}, got {self.forward_cost!r}"
+            )
         if self.physics_hz % self.control_hz != 0 or self.physics_hz < 500:
             raise ValueError("physics_hz must be >= 500 and a multiple of control_hz")
         if self.action_mapping not in ("stand_centered", "linear"):
@@ -423,7 +430,7 @@ class A1Env(gym.Env[np.ndarray, np.ndarray]):
         terms["work"] = r_work
         terms["smooth"] = tasks.smooth_penalty(a, self._prev_action)
         if c.task == "forward":
-            reward, cost, safe = tasks.forward_reward(terms)
+            reward, cost, safe = tasks.forward_reward(terms, c.forward_cost)
         else:
             reward, cost, safe = tasks.posture_reward(terms)
         self._prev_action = a

@@ -45,6 +45,8 @@ W_REG = 0.001
 FORWARD_TERMS = ("upr", "velx", "vely", "yaw", "speed", "work", "smooth")
 POSTURE_TERMS = ("upr", "hip", "upper", "lower", "speed", "work", "smooth")
 TASKS = ("forward", "posture")
+FORWARD_COSTS = ("paper", "upright")
+"""Costs of the forward task: the paper's 0.7 − r, or the upright margin 0.7 − r_upr."""
 
 
 def upright_reward(up_z: float) -> float:
@@ -125,13 +127,18 @@ def posture_terms(r_upr: float, dev: np.ndarray) -> tuple[float, float, float]:
     return r_hip, r_upper, r_lower
 
 
-def forward_reward(terms: dict[str, float]) -> tuple[float, float, bool]:
+def forward_reward(terms: dict[str, float], cost: str = "paper") -> tuple[float, float, bool]:
     """(reward, cost, safe) of the forward task (§5.2) from the ``FORWARD_TERMS``.
 
-    The cost is the paper's c = 0.7 − r. Note that ``cost <= 0`` implies safe but a safe state
-    can have a positive cost (e.g. upright while moving backwards), so ``safe`` is returned
-    separately and is the paper's safe set r_upr > 0.7.
+    ``cost="paper"``: the paper's c = 0.7 − r. Note that ``cost <= 0`` implies safe but a safe
+    state can have a positive cost (e.g. upright while moving backwards), and that c is the
+    reward shifted, so a fast forward gait earns negative costs that pay for falls in the cost
+    return; ``safe`` is returned separately and is the paper's safe set r_upr > 0.7.
+    ``cost="upright"``: c = 0.7 − r_upr, the safe set's own margin (c <= 0 exactly when safe,
+    except on the boundary r_upr == 0.7), in [−0.3, 0.7] whatever the velocity.
     """
+    if cost not in FORWARD_COSTS:
+        raise ValueError(f"cost must be one of {FORWARD_COSTS}, got {cost!r}")
     upr = terms["upr"]
     gate = 1.0 if upr > GATE else 0.0
     reward = (
@@ -139,7 +146,8 @@ def forward_reward(terms: dict[str, float]) -> tuple[float, float, bool]:
         + gate * (W_VELX * terms["velx"] - W_VELY * terms["vely"] - W_YAW * terms["yaw"])
         - W_REG * (terms["speed"] + terms["work"] + terms["smooth"])
     )
-    return reward, GATE - reward, upr > GATE
+    c = GATE - reward if cost == "paper" else GATE - upr
+    return reward, c, upr > GATE
 
 
 def posture_reward(terms: dict[str, float]) -> tuple[float, float, bool]:

@@ -102,6 +102,21 @@ def test_upside_down_is_unsafe_with_the_paper_cost() -> None:
     env.close()
 
 
+def test_upright_cost_is_read_from_the_env_config() -> None:
+    env = make(rescue=False, forward_cost="upright")
+    _, reward, _, _, info = env.step(STAND)
+    assert info["cost"] == pytest.approx(0.7 - info["reward_terms"]["upr"])
+    assert info["cost"] != pytest.approx(0.7 - reward, abs=1e-6)
+    upside_down(env)
+    for _ in range(3):
+        _, _, _, _, info = env.step(STAND)
+    assert info["cost"] == pytest.approx(0.7 - info["reward_terms"]["upr"])
+    assert not info["safe"] and info["cost"] > 0.69
+    env.close()
+    with pytest.raises(ValueError, match="forward_cost"):
+        A1Config(forward_cost="speed")
+
+
 def test_forward_velocity_raises_the_reward_only_while_upright() -> None:
     env = make(rescue=False)
     heading = (math.cos(YAW), math.sin(YAW), 0.0)

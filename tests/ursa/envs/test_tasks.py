@@ -67,6 +67,19 @@ def test_forward_reward_cost_and_safe_by_hand() -> None:
     assert c > 0 and safe
 
 
+def test_forward_upright_cost_is_the_safe_sets_margin() -> None:
+    terms = dict(upr=0.9, velx=-0.5, vely=0.2, yaw=0.4, speed=100.0, work=20.0, smooth=3.0)
+    # same reward as the paper's cost; the cost ignores velocity: 0.7 − 0.9
+    r, c, safe = tasks.forward_reward(terms, "upright")
+    assert r == pytest.approx(tasks.forward_reward(terms)[0])
+    assert c == pytest.approx(-0.2) and safe
+    assert tasks.forward_reward({**terms, "velx": 1.0}, "upright")[1] == pytest.approx(-0.2)
+    r, c, safe = tasks.forward_reward({**terms, "upr": 0.25}, "upright")
+    assert c == pytest.approx(0.45) and not safe
+    with pytest.raises(ValueError, match="cost must be one of"):
+        tasks.forward_reward(terms, "velocity")
+
+
 def test_posture_deviation_is_relative_to_the_worst_case() -> None:
     stand = np.array([0.0, 0.9, -1.8])
     low = np.array([-0.8, -1.0, -2.68])
