@@ -454,7 +454,11 @@ def test_learner_killed_during_checkpoint_write_resumes_from_previous(faults: Fa
     assert not (ckpt_dir / torn).exists(), "the restarted learner left the torn checkpoint file"
     assert post["checkpoint_tmp_removed"] >= 1, post
     assert f"resumed from checkpoint at {prev} updates" in logs, logs[-3000:]
-    assert prev <= before.get("updates", 0) + 1 and post["updates"] >= prev, (prev, before, post)
+    # no bound from `before`: it is read before the watch for a write (up to 120 s of training),
+    # and checkpoints completed during the watch hold more updates (CI 2026-12-06: 176 on disk,
+    # 174 in the stats before the watch). What matters: learner.pt loads (a complete file, read
+    # above), the restart resumed from it (the log line) and went on from there.
+    assert post["updates"] >= prev, (prev, before, post)
     assert more["updates"] > post["updates"] >= prev > 0
     assert more["missing_total"] == 0, more
 
