@@ -77,6 +77,12 @@ def actor_objective(
     )
 
 
+def cap_safe_margin(cost: torch.Tensor, cap: float) -> torch.Tensor:
+    """max(c, −cap), elementwise (any shape): margins deeper inside the safe set than ``cap``
+    earn nothing more. Costs above −cap (violations included) pass unchanged, gradient too."""
+    return cost.clamp(min=-cap)
+
+
 def any_ahead(flag: torch.Tensor) -> torch.Tensor:
     """Whether ``flag`` (H, N) holds at step t or at any later step: out[t] = max_{k ≥ t} flag[k]
     (H, N), as float."""

@@ -41,6 +41,7 @@ from ursa.agent import (
     ReturnNorm,
     actor_objective,
     any_ahead,
+    cap_safe_margin,
     frozen_copy,
     joint_input,
     lambda_return,
@@ -426,7 +427,10 @@ class Learner:
             dist = mahalanobis(ret_m - skill, whiten)
             c_logits = online.cost_logits
             c_all = two_hot_mean(c_logits, bins)
-            ret_c = lambda_return(pred["cost"], grad_or_not(c_all), c.gamma_cost, c.return_lambda)
+            cost = pred["cost"]
+            if c.cost_margin_cap is not None:
+                cost = cap_safe_margin(cost, c.cost_margin_cap)
+            ret_c = lambda_return(cost, grad_or_not(c_all), c.gamma_cost, c.return_lambda)
             self.retnorm_c.update(ret_c)
             scale_c = self.retnorm_c.scale()
             logit1 = self.lam1.logit(xd)
@@ -454,7 +458,7 @@ class Learner:
             viol1 = (dist.detach() > delta).float()
             viol2 = (ret_c.detach() > 0.0).float()
             if c.lambda2_label == "step":
-                viol2 = torch.maximum(viol2, any_ahead(pred["cost"].detach() > 0.0))
+                viol2 = torch.maximum(viol2, any_ahead(cost.detach() > 0.0))
             bce = nn.functional.binary_cross_entropy_with_logits
             l1 = (weight * bce(logit1, viol1, reduction="none")).mean()
             pw2 = self._lam2_pos_weight

@@ -97,6 +97,13 @@ class LearnerConfig:
     """γ of V, ψ and C (paper §5.1)."""
     cost_discount: float = 0.0
     """γ of the cost critic C; 0 means ``discount``. See docs/learner.md (point-env tests)."""
+    cost_margin_cap: float | None = None
+    """None: off (the paper). Otherwise the imagined per-step cost enters C's return as
+    max(c, −cap): a state deeper than ``cap`` inside the safe set costs no less than one at
+    ``cap``. With a cost that is negative on safe states (the A1's upright margin), −λ2·C else
+    keeps paying for more margin. Measured on the A1 with λ2's floor (docs/learner.md): at 0.1
+    the forward task stays safe but its skills are no better followed, and the posture task's
+    policy stops following its velocity skills (0–2 of 50 within δ), so no preset uses it."""
     delta_scale: float = 1.0
     """The actor and λ1 enforce ‖(1−γ)ψ − z‖ ≤ ``delta_scale`` · δ. Below 1 it keeps a margin:
     the reward term pulls the actor to the constraint's boundary, so model error and the
@@ -230,6 +237,8 @@ class LearnerConfig:
             raise ValueError("lambda2_floor_max must be in [0, 1]")
         if self.lambda2_floor_window < 1:
             raise ValueError("lambda2_floor_window must be ≥ 1")
+        if self.cost_margin_cap is not None and not self.cost_margin_cap >= 0.0:
+            raise ValueError("cost_margin_cap must be ≥ 0 (None: off)")
         if self.actor_mean_bound < 0.0:
             raise ValueError("actor_mean_bound must be ≥ 0 (0: off)")
 

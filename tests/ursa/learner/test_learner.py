@@ -164,6 +164,27 @@ def test_lambda2_step_label_adds_unsafe_steps_ahead() -> None:
         dataclasses.replace(MICRO, lambda2_label="any")  # type: ignore[arg-type]
 
 
+def test_cost_margin_cap_raises_the_cost_return_only() -> None:
+    """``cost_margin_cap`` clips the imagined costs from below: on the same batch and seed (same
+    rollout), a cap of 0 removes every negative predicted cost, so the cost return rises and λ2's
+    labels can only grow; a cap beyond every predicted margin changes nothing; the skill side
+    does not move."""
+    replay = _random_replay()
+    snap = _snapshot(np.random.default_rng(0).uniform(-1, 1, size=(300, 2)))
+    batch = replay.sample(MICRO.batch_size, MICRO.seq_len, np.random.default_rng(0))
+    out = {}
+    for cap in (None, 0.0, 1e6):
+        cfg = dataclasses.replace(MICRO, mode="ursa-supervised", cost_margin_cap=cap)
+        out[cap] = Learner(cfg, 6, 2, 2).train_step(batch, snap)
+    assert out[0.0]["imag/cost_return"] > out[None]["imag/cost_return"]
+    assert out[0.0]["lambda2/violated"] >= out[None]["lambda2/violated"]
+    assert out[1e6]["imag/cost_return"] == pytest.approx(out[None]["imag/cost_return"])
+    assert out[0.0]["lambda1/violated"] == pytest.approx(out[None]["lambda1/violated"])
+    assert out[0.0]["imag/distance"] == pytest.approx(out[None]["imag/distance"], rel=1e-5)
+    with pytest.raises(ValueError, match="cost_margin_cap"):
+        dataclasses.replace(MICRO, cost_margin_cap=-0.1)
+
+
 def test_lambda2_pos_weight_scales_the_unsafe_labels() -> None:
     """λ2's loss is Σ γ^t [w·y·softplus(−x) + (1 − y)·softplus(x)]: on the same batch and seed
     (same rollout, labels and logits) it is affine in w with a positive slope, and λ1's loss

@@ -11,6 +11,7 @@ import torch
 from ursa.agent import (
     actor_objective,
     any_ahead,
+    cap_safe_margin,
     lambda_return,
     mahalanobis,
     percentile_update,
@@ -174,6 +175,17 @@ def test_any_ahead_hand_worked() -> None:
     want = torch.tensor([[1.0, 0.0, 1.0], [1.0, 0.0, 1.0], [1.0, 0.0, 1.0], [0.0, 0.0, 1.0]])
     assert torch.equal(any_ahead(flag), want)
     assert any_ahead(flag).dtype == torch.float32
+
+
+def test_cap_safe_margin_hand_worked() -> None:
+    """Cap 0.1: −0.3 and −0.2 (deep inside the safe set) become −0.1; −0.05, 0 and a violation
+    of 0.4 pass unchanged, and so does their gradient, while the clipped ones get none."""
+    c = torch.tensor([-0.3, -0.2, -0.05, 0.0, 0.4], requires_grad=True)
+    out = cap_safe_margin(c, 0.1)
+    assert torch.allclose(out, torch.tensor([-0.1, -0.1, -0.05, 0.0, 0.4]))
+    out.sum().backward()
+    assert c.grad is not None
+    assert torch.equal(c.grad, torch.tensor([0.0, 0.0, 1.0, 1.0, 1.0]))
 
 
 def test_mahalanobis_matches_scipy() -> None:
