@@ -5,6 +5,9 @@ from __future__ import annotations
 
 import contextlib
 import contextvars
+import functools
+import statistics
+import time
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -78,12 +81,49 @@ def cpu_has_bf16(cpuinfo: str | None = None) -> bool:
     )
 
 
+BF16_MIN_SPEEDUP = 1.25
+"""``auto`` picks bfloat16 on a CPU with bf16 flags only if a matrix product of an update's shape
+runs at least this many times faster in bf16 than in float32 (:func:`cpu_bf16_speedup`). The
+flags alone do not say it: measured whole updates at ``small`` sizes (docs/learner.md) ran
+1.69× float32 on an Intel Xeon with AMX and 1.92× on an AMD EPYC (Zen 4, AVX512-BF16), but
+0.65–0.80× on an Intel Xeon whose VM exposes AVX512-BF16 without AMX, where the product itself
+runs at 0.53× float32."""
+
+
+def cpu_bf16_speedup(repeats: int = 5) -> float:
+    """float32 seconds ÷ bfloat16 seconds of (2048 × 512) · (512 × 256) on this CPU with the
+    current torch threads: median over ``repeats`` interleaved pairs of 3 products each (about
+    0.1 s in all). > 1: bf16 is faster."""
+    gen = torch.Generator().manual_seed(0)
+    x32 = torch.randn(2048, 512, generator=gen)
+    w32 = torch.randn(512, 256, generator=gen)
+    pairs = {torch.float32: (x32, w32), torch.bfloat16: (x32.bfloat16(), w32.bfloat16())}
+    for x, w in pairs.values():  # first calls pay for the kernels' set-up
+        x @ w
+    ratios = []
+    for _ in range(repeats):
+        took = {}
+        for dtype, (x, w) in pairs.items():
+            start = time.perf_counter()
+            for _ in range(3):
+                x @ w
+            took[dtype] = time.perf_counter() - start
+        ratios.append(took[torch.float32] / max(took[torch.bfloat16], 1e-9))
+    return float(statistics.median(ratios))
+
+
+@functools.cache
+def _cpu_prefers_bf16() -> bool:
+    return cpu_has_bf16() and cpu_bf16_speedup() >= BF16_MIN_SPEEDUP
+
+
 def resolve_compute_dtype(name: str, device: torch.device) -> torch.dtype | None:
     """The autocast dtype of a ``compute_dtype`` setting on ``device`` (None: float32).
 
-    ``auto`` picks bfloat16 where it was measured faster (docs/learner.md): CUDA devices with
-    bf16 support and CPUs with AMX-BF16 or AVX512-BF16; float32 elsewhere (a CPU without bf16
-    instructions emulates it, slower than float32)."""
+    ``auto`` picks bfloat16 where it is faster: CUDA devices with bf16 support, and CPUs with
+    AMX-BF16 or AVX512-BF16 flags on which a bf16 matrix product measures at least
+    :data:`BF16_MIN_SPEEDUP` × float32's (once per process); float32 elsewhere (without the
+    flags bf16 is emulated, several times slower)."""
     if name == "float32":
         return None
     if name == "bfloat16":
@@ -92,7 +132,7 @@ def resolve_compute_dtype(name: str, device: torch.device) -> torch.dtype | None
         raise ValueError(f"unknown compute_dtype {name!r}")
     if device.type == "cuda":
         return torch.bfloat16 if torch.cuda.is_bf16_supported() else None
-    return torch.bfloat16 if device.type == "cpu" and cpu_has_bf16() else None
+    return torch.bfloat16 if device.type == "cpu" and _cpu_prefers_bf16() else None
 
 
 class MLP(nn.Module):

@@ -125,6 +125,13 @@ class LearnerService:
         feat_in = int(env.feature_dims[self.cfg.feature_input_key])
         env.close()
         self.learner = Learner(self.cfg.learner, obs_dim, act_dim, feat_in, self.cfg.skill_dim)
+        # `auto` is resolved by measuring this CPU; say what it gave
+        self.log.info(
+            "compute dtype %s (setting %s, %s)",
+            "float32" if self.learner.compute is None else str(self.learner.compute).split(".")[-1],
+            self.cfg.learner.compute_dtype,
+            self.learner.device,
+        )
         self.replay = Replay(args.replay_capacity)
         self.ledger = IngestLedger()
         self.rng = np.random.default_rng(self.cfg.learner.seed + 1)

@@ -1,6 +1,6 @@
 """The networks' compute dtype (``LearnerConfig.compute_dtype``): bfloat16 layers return float32,
 stay close to float32, really run in bfloat16, train, and resume bit for bit; ``auto`` follows the
-CPU's flags."""
+CPU's flags and a measured bf16 product."""
 
 from __future__ import annotations
 
@@ -13,6 +13,7 @@ import pytest
 import torch
 
 from tests.ursa.learner.test_learner import MICRO, _random_replay, _snapshot
+from ursa import networks
 from ursa.learner import Learner
 from ursa.learner_config import LearnerConfig, learner_preset
 from ursa.networks import (
@@ -41,8 +42,11 @@ def test_cpu_flags_and_auto() -> None:
     cpu = torch.device("cpu")
     assert resolve_compute_dtype("float32", cpu) is None
     assert resolve_compute_dtype("bfloat16", cpu) is torch.bfloat16
-    expected = torch.bfloat16 if cpu_has_bf16() else None
+    # auto on this CPU: what the flags and the measured product (once per process) say
+    expected = torch.bfloat16 if networks._cpu_prefers_bf16() else None
     assert resolve_compute_dtype("auto", cpu) is expected
+    if not cpu_has_bf16():
+        assert expected is None
     with pytest.raises(ValueError):
         resolve_compute_dtype("float16", cpu)
     with pytest.raises(ValueError):
@@ -51,6 +55,48 @@ def test_cpu_flags_and_auto() -> None:
     assert learner_preset("small").compute_dtype == learner_preset("paper").compute_dtype == "auto"
     for name in ("tiny", "point"):
         assert learner_preset(name).compute_dtype == "float32"  # type: ignore[arg-type]
+
+
+@pytest.mark.parametrize(
+    ("flags", "speedup", "expected"),
+    [
+        (True, 1.9, torch.bfloat16),  # AMX or AMD Zen 4: bf16 products about twice as fast
+        (True, 1.25, torch.bfloat16),  # at the threshold
+        (True, 1.2, None),  # below it
+        (True, 0.53, None),  # AVX512-BF16 in the flags, slower products (an Intel VM, measured)
+    ],
+)
+def test_auto_on_cpu_follows_the_measured_speedup(
+    monkeypatch: pytest.MonkeyPatch, flags: bool, speedup: float, expected: torch.dtype | None
+) -> None:
+    assert networks.BF16_MIN_SPEEDUP == 1.25
+    monkeypatch.setattr(networks, "cpu_has_bf16", lambda cpuinfo=None: flags)
+    monkeypatch.setattr(networks, "cpu_bf16_speedup", lambda repeats=5: speedup)
+    networks._cpu_prefers_bf16.cache_clear()
+    try:
+        assert resolve_compute_dtype("auto", torch.device("cpu")) is expected
+        assert resolve_compute_dtype("float32", torch.device("cpu")) is None
+        assert resolve_compute_dtype("bfloat16", torch.device("cpu")) is torch.bfloat16
+    finally:
+        networks._cpu_prefers_bf16.cache_clear()
+
+
+def test_auto_without_bf16_flags_measures_nothing(monkeypatch: pytest.MonkeyPatch) -> None:
+    def never(repeats: int = 5) -> float:
+        raise AssertionError("emulated bf16 must not be timed")
+
+    monkeypatch.setattr(networks, "cpu_has_bf16", lambda cpuinfo=None: False)
+    monkeypatch.setattr(networks, "cpu_bf16_speedup", never)
+    networks._cpu_prefers_bf16.cache_clear()
+    try:
+        assert resolve_compute_dtype("auto", torch.device("cpu")) is None
+    finally:
+        networks._cpu_prefers_bf16.cache_clear()
+
+
+def test_bf16_speedup_is_a_ratio_of_real_timings() -> None:
+    r = networks.cpu_bf16_speedup(repeats=3)
+    assert math.isfinite(r) and 0.01 < r < 100.0
 
 
 def test_bf16_layers_return_float32_close_to_float32() -> None:
