@@ -44,7 +44,7 @@ import torch
 
 from ursa.learner import Learner, SkillSnapshot
 from ursa.learner_config import LearnerConfig, learner_preset
-from ursa.networks import resolve_compute_dtype
+from ursa.networks import dtype_name, resolve_compute_dtype
 from ursa.repertoire import Repertoire, RepertoireConfig
 from ursa.threads import limit_threads
 
@@ -261,7 +261,7 @@ def main() -> None:
     small_dtype = resolve_compute_dtype(
         learner_preset("small").compute_dtype, torch.device(args.device)
     )
-    compute = "bfloat16" if small_dtype is torch.bfloat16 else "float32"
+    compute = dtype_name(small_dtype)
     print(
         "RESULT "
         + " ".join([first, *out, f"device={args.device}", f"compute={compute}", reference_ratio])

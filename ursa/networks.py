@@ -86,7 +86,7 @@ BF16_MIN_SPEEDUP = 1.25
 runs at least this many times faster in bf16 than in float32 (:func:`cpu_bf16_speedup`). The
 flags alone do not say it: measured whole updates at ``small`` sizes (docs/learner.md) ran
 1.69× float32 on an Intel Xeon with AMX and 1.92× on an AMD EPYC (Zen 4, AVX512-BF16), but
-0.65–0.80× on an Intel Xeon whose VM exposes AVX512-BF16 without AMX, where the product itself
+0.64–0.85× on an Intel Xeon whose VM exposes AVX512-BF16 without AMX, where the product itself
 runs at 0.53× float32."""
 
 
@@ -133,6 +133,11 @@ def resolve_compute_dtype(name: str, device: torch.device) -> torch.dtype | None
     if device.type == "cuda":
         return torch.bfloat16 if torch.cuda.is_bf16_supported() else None
     return torch.bfloat16 if device.type == "cpu" and _cpu_prefers_bf16() else None
+
+
+def dtype_name(dtype: torch.dtype | None) -> str:
+    """The ``compute_dtype`` name of a resolved dtype (None: float32), for logs and tables."""
+    return "float32" if dtype is None else str(dtype).removeprefix("torch.")
 
 
 class MLP(nn.Module):

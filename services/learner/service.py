@@ -45,6 +45,7 @@ from services.learner.replay_store import ReplayWriter, read_all
 from ursa import bounds, kde
 from ursa.config import build_env
 from ursa.learner import Learner, SkillSnapshot
+from ursa.networks import dtype_name
 from ursa.pace import default_slack, insert_budget
 from ursa.replay import Replay
 from ursa.rundir import TEMP_SUFFIX, RunDir, atomic_write
@@ -128,7 +129,7 @@ class LearnerService:
         # `auto` is resolved by measuring this CPU; say what it gave
         self.log.info(
             "compute dtype %s (setting %s, %s)",
-            "float32" if self.learner.compute is None else str(self.learner.compute).split(".")[-1],
+            dtype_name(self.learner.compute),
             self.cfg.learner.compute_dtype,
             self.learner.device,
         )

@@ -94,6 +94,11 @@ def test_auto_without_bf16_flags_measures_nothing(monkeypatch: pytest.MonkeyPatc
         networks._cpu_prefers_bf16.cache_clear()
 
 
+def test_dtype_names() -> None:
+    assert networks.dtype_name(None) == "float32"
+    assert networks.dtype_name(torch.bfloat16) == "bfloat16"
+
+
 def test_bf16_speedup_is_a_ratio_of_real_timings() -> None:
     r = networks.cpu_bf16_speedup(repeats=3)
     assert math.isfinite(r) and 0.01 < r < 100.0
