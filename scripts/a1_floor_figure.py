@@ -5,8 +5,12 @@ docs quote, against the floor-less baseline of docs/results/a1_posture_long.json
 run the violation rate and λ2 (network mean and floor) against updates.
 
     .venv/bin/python scripts/a1_floor_figure.py --run NAME CURVE.json SKILLS.json [--run ...] \
-        --baseline docs/results/a1_posture_long.json post_w1_s1 post_w1_s2 \
+        --baseline docs/results/a1_posture_long.json post_w1_s1 post_w1_s2 [--baseline ...] \
+        --command "the a1_serial.py command of the runs" \
         --json docs/results/a1_posture_lambda2_floor.json --png docs/figures/a1_posture_floor.png
+
+Each ``--baseline`` names an earlier results file (this script's or
+docs/results/a1_posture_long.json) and the runs of it to draw in grey beside the new ones.
 """
 
 from __future__ import annotations
@@ -16,6 +20,14 @@ import json
 from pathlib import Path
 from typing import Any
 
+DEFAULT_COMMAND = (
+    "scripts/a1_serial.py --preset cpu --feature velocity --seed S --updates 9000 "
+    "--minutes 44 --a1 task='\"posture\"' action_filter_hz=1.5 --collector "
+    "random_scale=0.2 archive_window=1 --set lambda2_floor_lr=0.01 "
+    "lambda2_floor_target=TARGET lambda2_floor_max=0.9 --out S.json --run-dir RUN; "
+    "scripts/a1_skills.py RUN --skills 50 --out SKILLS.json"
+)
+"""The command of the first floor runs (docs/results/a1_posture_lambda2_floor.json)."""
 LAST_S = 15 * 60
 """The issue's safety window: the last 15 minutes of a run."""
 
@@ -45,13 +57,22 @@ def summarise(curve: list[dict[str, Any]], seconds: float) -> dict[str, Any]:
     }
 
 
+def floor_label(overrides: dict[str, Any] | None) -> str:
+    """How a run's learner overrides set λ2's floor, for a legend ("no floor", "max 0.6")."""
+    o = overrides or {}
+    if not o.get("lambda2_floor_lr"):
+        return "no floor"
+    return f"target {o.get('lambda2_floor_target')}, max {o.get('lambda2_floor_max', 0.9)}"
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument(
         "--run", nargs=3, action="append", default=[], metavar=("NAME", "CURVE", "SKILLS")
     )
-    ap.add_argument("--baseline", nargs="+", default=None, metavar="FILE_AND_RUNS")
+    ap.add_argument("--baseline", nargs="+", action="append", default=[], metavar="FILE_AND_RUNS")
     ap.add_argument("--machine", default="")
+    ap.add_argument("--command", default=DEFAULT_COMMAND, help="the runs' command, recorded")
     ap.add_argument("--json", type=Path, required=True)
     ap.add_argument("--png", type=Path, required=True)
     a = ap.parse_args()
@@ -87,13 +108,15 @@ def main() -> None:
             ],
         }
     baseline: dict[str, Any] = {}
-    if a.baseline:
-        src = json.loads(Path(a.baseline[0]).read_text())["runs"]
-        for name in a.baseline[1:]:
+    for file, *names in a.baseline:
+        src = json.loads(Path(file).read_text())["runs"]
+        for name in names:
             r = src[name]
             ev = r["skills_eval"]
             baseline[name] = {
+                "source": file,
                 "seed": r["seed"],
+                "floor": floor_label(r.get("learner_overrides")),
                 "updates": r["updates"],
                 **summarise(r["curve"], r["seconds"]),
                 "within_delta": ev["within_delta"],
@@ -101,14 +124,8 @@ def main() -> None:
             }
     out = {
         "machine": a.machine,
-        "command": (
-            "scripts/a1_serial.py --preset cpu --feature velocity --seed S --updates 9000 "
-            "--minutes 44 --a1 task='\"posture\"' action_filter_hz=1.5 --collector "
-            "random_scale=0.2 archive_window=1 --set lambda2_floor_lr=0.01 "
-            "lambda2_floor_target=TARGET lambda2_floor_max=0.9 --out S.json --run-dir RUN; "
-            "scripts/a1_skills.py RUN --skills 50 --out SKILLS.json"
-        ),
-        "baseline_source": a.baseline[0] if a.baseline else None,
+        "command": a.command,
+        "baseline_source": sorted({file for file, *_ in a.baseline}) or None,
         "baseline": baseline,
         "runs": runs,
     }
@@ -121,19 +138,20 @@ def main() -> None:
     import matplotlib.pyplot as plt
 
     fig, ax = plt.subplots(1, 2, figsize=(13, 4.2))
-    if a.baseline:
-        src = json.loads(Path(a.baseline[0]).read_text())["runs"]
-        for name in a.baseline[1:]:
+    greys = ("0.45", "0.6", "0.75")
+    for i, (file, *names) in enumerate(a.baseline):
+        src = json.loads(Path(file).read_text())["runs"]
+        for j, name in enumerate(names):
             c = [r for r in src[name]["curve"] if r["updates"] > 0]
             up = [r["updates"] for r in c]
-            label = f"seed {src[name]['seed']}, no floor"
-            ax[0].plot(up, [r["violation_rate"] for r in c], color="0.6", lw=0.8, label=label)
-            ax[1].plot(up, [r["lambda2"] for r in c], color="0.6", lw=0.8, label=label)
+            label = f"seed {src[name]['seed']}, {floor_label(src[name].get('learner_overrides'))}"
+            style = {"color": greys[i % len(greys)], "lw": 0.8, "ls": ("-", "--", ":")[j % 3]}
+            ax[0].plot(up, [r["violation_rate"] for r in c], label=label, **style)
+            ax[1].plot(up, [r["lambda2"] for r in c], label=label, **style)
     for run in runs.values():
         c = [r for r in run["curve"] if r["updates"] > 0]
         up = [r["updates"] for r in c]
-        target = run["learner_overrides"].get("lambda2_floor_target")
-        label = f"seed {run['seed']}, target {target}"
+        label = f"seed {run['seed']}, {floor_label(run['learner_overrides'])}"
         (line,) = ax[0].plot(up, [r["violation_rate"] for r in c], lw=1.0, label=label)
         col = line.get_color()
         ax[1].plot(up, [r["lambda2"] for r in c], color=col, lw=1.0, label=f"{label}: λ2(s, z)")
