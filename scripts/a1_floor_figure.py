@@ -20,6 +20,8 @@ import json
 from pathlib import Path
 from typing import Any
 
+from ursa.learner_config import LearnerConfig
+
 DEFAULT_COMMAND = (
     "scripts/a1_serial.py --preset cpu --feature velocity --seed S --updates 9000 "
     "--minutes 44 --a1 task='\"posture\"' action_filter_hz=1.5 --collector "
@@ -58,11 +60,13 @@ def summarise(curve: list[dict[str, Any]], seconds: float) -> dict[str, Any]:
 
 
 def floor_label(overrides: dict[str, Any] | None) -> str:
-    """How a run's learner overrides set λ2's floor, for a legend ("no floor", "max 0.6")."""
+    """How a run's learner overrides set λ2's floor, for a legend ("no floor", "target 0.02,
+    max 0.6"); a field not overridden has :class:`LearnerConfig`'s default."""
     o = overrides or {}
     if not o.get("lambda2_floor_lr"):
         return "no floor"
-    return f"target {o.get('lambda2_floor_target')}, max {o.get('lambda2_floor_max', 0.9)}"
+    target = o.get("lambda2_floor_target", LearnerConfig.lambda2_floor_target)
+    return f"target {target}, max {o.get('lambda2_floor_max', LearnerConfig.lambda2_floor_max)}"
 
 
 def main() -> None:
@@ -107,21 +111,23 @@ def main() -> None:
                 for r in d["rows"]
             ],
         }
-    baseline: dict[str, Any] = {}
-    for file, *names in a.baseline:
+    # (file's index, index in its file, name, run) of every baseline run, each file read once
+    base_runs: list[tuple[int, int, str, dict[str, Any]]] = []
+    for i, (file, *names) in enumerate(a.baseline):
         src = json.loads(Path(file).read_text())["runs"]
-        for name in names:
-            r = src[name]
-            ev = r["skills_eval"]
-            baseline[name] = {
-                "source": file,
-                "seed": r["seed"],
-                "floor": floor_label(r.get("learner_overrides")),
-                "updates": r["updates"],
-                **summarise(r["curve"], r["seconds"]),
-                "within_delta": ev["within_delta"],
-                "eval_violation_rate": ev["violation_rate"],
-            }
+        base_runs += [(i, j, n, {**src[n], "source": file}) for j, n in enumerate(names)]
+    baseline: dict[str, Any] = {}
+    for _, _, name, r in base_runs:
+        ev = r["skills_eval"]
+        baseline[name] = {
+            "source": r["source"],
+            "seed": r["seed"],
+            "floor": floor_label(r.get("learner_overrides")),
+            "updates": r["updates"],
+            **summarise(r["curve"], r["seconds"]),
+            "within_delta": ev["within_delta"],
+            "eval_violation_rate": ev["violation_rate"],
+        }
     out = {
         "machine": a.machine,
         "command": a.command,
@@ -139,15 +145,13 @@ def main() -> None:
 
     fig, ax = plt.subplots(1, 2, figsize=(13, 4.2))
     greys = ("0.45", "0.6", "0.75")
-    for i, (file, *names) in enumerate(a.baseline):
-        src = json.loads(Path(file).read_text())["runs"]
-        for j, name in enumerate(names):
-            c = [r for r in src[name]["curve"] if r["updates"] > 0]
-            up = [r["updates"] for r in c]
-            label = f"seed {src[name]['seed']}, {floor_label(src[name].get('learner_overrides'))}"
-            style = {"color": greys[i % len(greys)], "lw": 0.8, "ls": ("-", "--", ":")[j % 3]}
-            ax[0].plot(up, [r["violation_rate"] for r in c], label=label, **style)
-            ax[1].plot(up, [r["lambda2"] for r in c], label=label, **style)
+    for i, j, _, run in base_runs:
+        c = [r for r in run["curve"] if r["updates"] > 0]
+        up = [r["updates"] for r in c]
+        label = f"seed {run['seed']}, {floor_label(run.get('learner_overrides'))}"
+        style = {"color": greys[i % len(greys)], "lw": 0.8, "ls": ("-", "--", ":")[j % 3]}
+        ax[0].plot(up, [r["violation_rate"] for r in c], label=label, **style)
+        ax[1].plot(up, [r["lambda2"] for r in c], label=label, **style)
     for run in runs.values():
         c = [r for r in run["curve"] if r["updates"] > 0]
         up = [r["updates"] for r in c]
