@@ -1,9 +1,10 @@
 """Start the whole URSA stack on one machine as separate processes (``ursa up`` / ``make run``).
 
 Starts the router, then the repertoire, the learner, N collectors, the dashboard and the HTTP
-API, each a separate Python process in its own process group. Prefixes their logs, stops all of
-them on Ctrl-C or SIGTERM (SIGTERM, then SIGKILL after a grace period) and leaves no process
-behind.
+API, each a separate Python process in its own process group. Prefixes their logs, starts a
+service that exits again (``--max-restarts``, as compose's ``restart: unless-stopped``), stops
+all of them on Ctrl-C or SIGTERM (SIGTERM, then SIGKILL after a grace period) or when a service
+keeps exiting, and leaves no process behind.
 """
 
 from __future__ import annotations
@@ -62,28 +63,49 @@ class UpArgs:
     collectors hold (docs/learner.md, "Threads")."""
     grace_s: float = 5.0
     """Seconds between SIGTERM and SIGKILL at shutdown."""
+    max_restarts: int = 5
+    """Restarts of one service that exits while the stack runs, as compose's ``restart:
+    unless-stopped`` (it resumes from the run directory), after 1, 2, 4, ... s; one more exit
+    stops the stack with exit code 1, so that a service that cannot start (a bad flag, a config
+    it rejects) does not leave the rest running without it. 0: the first exit stops it."""
     extra: tuple[str, ...] = ()
     """Extra arguments passed to every service, given after ``--``: ``ursa up --env a1 --
     --core.learner.imag-starts 128``."""
 
 
 class Child:
+    """One service process in its own process group, its output prefixed with its name."""
+
     def __init__(self, name: str, cmd: list[str], env: dict[str, str], color: str) -> None:
         self.name = name
         self.cmd = cmd
+        self.env = env
+        self.color = color
+        self.restarts = 0
+        """How often :func:`supervise` started it again."""
+        self.restart_at: float | None = None
+        """When (``time.monotonic``) it is started again; None while it runs."""
+        self._spawn()
+
+    def _spawn(self) -> None:
         self.proc = subprocess.Popen(
-            cmd,
+            self.cmd,
             stdout=subprocess.PIPE,
             stderr=subprocess.STDOUT,
-            env=env,
+            env=self.env,
             start_new_session=True,
             bufsize=1,
             text=True,
         )
-        self.color = color
         self.ready = threading.Event()
         self._thread = threading.Thread(target=self._pump, daemon=True)
         self._thread.start()
+
+    def respawn(self) -> None:
+        """Start the same command again (its old process has exited)."""
+        self.restarts += 1
+        self.restart_at = None
+        self._spawn()
 
     def _pump(self) -> None:
         assert self.proc.stdout is not None
@@ -102,6 +124,33 @@ class Child:
                 os.killpg(self.proc.pid, sig)
             except ProcessLookupError:
                 pass
+
+
+def supervise(children: list[Child], max_restarts: int, backoff_s: float, now: float) -> str | None:
+    """One look at the services (not the router): a service that has exited is started again
+    ``backoff_s``·2^k seconds later (k: its restarts so far), at most ``max_restarts`` times.
+    Returns why the stack must stop (a service exited once more than that), else None."""
+    for c in children:
+        code = c.proc.poll()
+        if code is None:
+            continue
+        if c.restart_at is None:
+            if c.restarts >= max_restarts:
+                return (
+                    f"{c.name} exited with code {code} after {c.restarts} restarts; "
+                    "stopping the stack (its log is above)"
+                )
+            delay = backoff_s * 2.0**c.restarts
+            c.restart_at = now + delay
+            print(
+                f"{c.name} exited with code {code}; restarting it in {delay:g} s "
+                f"(restart {c.restarts + 1} of {max_restarts})",
+                file=sys.stderr,
+                flush=True,
+            )
+        elif now >= c.restart_at:
+            c.respawn()
+    return None
 
 
 def _wait_port(host: str, port: int, timeout: float) -> bool:
@@ -225,9 +274,16 @@ def up(args: UpArgs) -> int:
             )
         print("  Ctrl-C stops everything.\n", flush=True)
 
+    code = 0
     while not stopping.is_set():
         if router.proc.poll() is not None:
             print("router exited; stopping the stack", file=sys.stderr, flush=True)
+            code = 1
+            break
+        failed = supervise(children[1:], args.max_restarts, 1.0, time.monotonic())
+        if failed is not None:
+            print(failed, file=sys.stderr, flush=True)
+            code = 1
             break
         stopping.wait(0.5)
 
@@ -252,4 +308,4 @@ def up(args: UpArgs) -> int:
         except subprocess.TimeoutExpired:
             pass
     print("URSA stopped.", flush=True)
-    return 0
+    return code

@@ -21,12 +21,21 @@ T = TypeVar("T")
 PRESETS: tuple[PresetName, ...] = typing.get_args(PresetName)
 
 
-_PICKERS = ("--preset", "--env", "--feature")
+# ``--core.feature`` is the field's own flag: parsed by tyro as a plain field it would change
+# the feature without the skill dimensions that follow from it (the repertoire then crashed on
+# its bounds and the learner dropped every chunk), so it is the same picker as ``--feature``.
+_PICKERS = {
+    "--preset": "preset",
+    "--env": "env",
+    "--feature": "feature",
+    "--core.feature": "feature",
+}
 
 
 def split_preset(argv: Sequence[str]) -> tuple[dict[str, str | None], list[str]]:
-    """Take ``--preset``, ``--env`` and ``--feature`` out of argv: they pick the defaults of
-    every other field (env vars URSA_PRESET, URSA_ENV, URSA_FEATURE)."""
+    """Take ``--preset``, ``--env`` and ``--feature`` (alias ``--core.feature``) out of argv:
+    they pick the defaults of every other field (env vars URSA_PRESET, URSA_ENV,
+    URSA_FEATURE)."""
     picked: dict[str, str | None] = {
         "preset": os.environ.get("URSA_PRESET", "cpu"),
         "env": os.environ.get("URSA_ENV") or None,
@@ -41,7 +50,7 @@ def split_preset(argv: Sequence[str]) -> tuple[dict[str, str | None], list[str]]
                 val = next(it, "")
                 if not val:
                     raise SystemExit(f"{flag} needs a value")
-            picked[flag[2:]] = val
+            picked[_PICKERS[flag]] = val
         else:
             rest.append(a)
     if picked["preset"] not in PRESETS:

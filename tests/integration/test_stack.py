@@ -20,8 +20,9 @@ from services.stack import ROOT, StatsWatcher, free_port, wait_for, wait_port
 pytestmark = pytest.mark.slow
 
 
-def _pids_of_run(run_id: str) -> list[int]:
-    """Live processes whose environment carries this run id."""
+def _pids_of_run(run_id: str, module: str = "") -> list[int]:
+    """Live processes whose environment carries this run id (and whose command line names
+    ``module``)."""
     pids = []
     needle = f"URSA_RUN_ID={run_id}".encode()
     for d in Path("/proc").iterdir():
@@ -30,6 +31,8 @@ def _pids_of_run(run_id: str) -> list[int]:
         try:
             if needle in (d / "environ").read_bytes().split(b"\0"):
                 stat = (d / "stat").read_text()
+                if module and module.encode() not in (d / "cmdline").read_bytes().split(b"\0"):
+                    continue
                 if ") Z" not in stat:  # zombies are already gone, only unreaped
                     pids.append(int(d.name))
         except OSError:
@@ -100,6 +103,20 @@ def test_launcher_stack_moves_data_and_stops_clean(tmp_path: Path) -> None:
         rs = watcher.get("repertoire", "main")
         assert rs is not None and rs.scalars["size"] > 0
         assert len(_pids_of_run(run_id)) >= 5  # launcher's children: router, rep, learner, 2 coll.
+        # a service that dies is started again by the launcher and serves again
+        (old,) = _pids_of_run(run_id, "services.repertoire")
+        os.kill(old, signal.SIGKILL)
+        wait_for(
+            lambda: _pids_of_run(run_id, "services.repertoire") not in ([], [old]),
+            30,
+            "the launcher to start the repertoire again",
+        )
+
+        def back() -> bool:
+            r = watcher.get("repertoire", "main")
+            return r is not None and r.scalars["uptime_s"] < 30 and r.scalars["size"] > 0
+
+        wait_for(back, 60, "the restarted repertoire's stats")
         watcher.close()
         session.close()
     finally:
@@ -110,6 +127,7 @@ def test_launcher_stack_moves_data_and_stops_clean(tmp_path: Path) -> None:
             log.close()
     out = (tmp_path / "launcher.log").read_text()
     assert "URSA is up" in out and "URSA stopped." in out, out[-3000:]
+    assert "repertoire exited with code -9; restarting it in 1 s (restart 1 of 5)" in out
     wait_for(lambda: not _pids_of_run(run_id), 10, "every process of the run to exit")
     # the learner wrote its replay as MCAP and every service saved its resolved config
     run_dir = tmp_path / "runs" / run_id

@@ -112,3 +112,41 @@ def test_up_learner_threads() -> None:
     assert (
         learner_threads(5, ("--core.collector.pace", "free"), {"URSA_TORCH_THREADS": "3"}, 8) == 5
     )
+
+
+def test_up_restarts_a_service_that_exits_then_gives_up(tmp_path: Path) -> None:
+    """A service that exits is started again after 1, 2, ... backoff units; once it has used
+    its restarts the next exit is the stack's stop reason. Real processes: each start appends
+    a line to a file and exits with code 3."""
+    import os
+    import sys
+    import time
+
+    from services.launcher import Child, supervise
+
+    log = tmp_path / "starts"
+    crash = f"open({str(log)!r}, 'a').write('x\\n'); raise SystemExit(3)"
+    steady = "import time; time.sleep(60)"
+    env = dict(os.environ)
+    bad = Child("bad", [sys.executable, "-c", crash], env, "31")
+    good = Child("good", [sys.executable, "-c", steady], env, "32")
+    try:
+        t = 0.0
+        reason = None
+        for _ in range(400):
+            reason = supervise([good, bad], max_restarts=2, backoff_s=0.05, now=t)
+            if reason is not None:
+                break
+            time.sleep(0.02)
+            t += 0.02
+        assert reason is not None and reason.startswith("bad exited with code 3 after 2"), reason
+        assert bad.restarts == 2 and log.read_text().count("x") == 3  # 1 start + 2 restarts
+        assert good.restarts == 0 and good.proc.poll() is None  # the others keep running
+        assert t >= 0.05 + 0.1  # the backoff doubled
+        # 0 restarts: the first exit is already fatal
+        once = Child("once", [sys.executable, "-c", crash], env, "33")
+        once.proc.wait(timeout=30)
+        assert supervise([once], max_restarts=0, backoff_s=1.0, now=0.0) is not None
+    finally:
+        good.signal(15)
+        good.proc.wait(timeout=10)

@@ -61,3 +61,19 @@ def test_environment_defaults_are_read_when_the_config_is_made(
     assert LearnerArgs().torch_threads == 3
     monkeypatch.setenv("URSA_WANDB", "bogus")
     assert RunConfig().wandb == "off"
+
+
+@pytest.mark.parametrize("flag", ["--feature", "--core.feature"])
+def test_either_feature_flag_sets_the_dimensions_that_follow_from_it(flag: str) -> None:
+    """``--core.feature velocity`` (the field's own flag) used to change only the name: the
+    repertoire kept the learned feature's 3 dimensions against the velocity's 2 bounds and
+    crashed, and the learner dropped every chunk. Both spellings pick the feature."""
+    from services.common.cli import parse
+    from services.learner.service import LearnerArgs
+
+    args = parse(LearnerArgs, ["--preset", "cpu", "--env", "a1", flag, "velocity"])
+    assert args.core == preset("cpu", "a1", "velocity")
+    assert args.core.feature == "velocity" and args.core.repertoire.dim == 2
+    assert preset("cpu", "a1").repertoire.dim == 3  # what the old parse left in place
+    args = parse(LearnerArgs, ["--preset", "cpu", f"{flag}=velocity", "--core.learner.seed", "4"])
+    assert args.core.repertoire.dim == 2 and args.core.learner.seed == 4
