@@ -145,17 +145,17 @@ def main() -> None:
 
     fig, ax = plt.subplots(1, 2, figsize=(13, 4.2))
     greys = ("0.45", "0.6", "0.75")
-    for i, j, _, run in base_runs:
+    for i, j, name, run in base_runs:
         c = [r for r in run["curve"] if r["updates"] > 0]
         up = [r["updates"] for r in c]
-        label = f"seed {run['seed']}, {floor_label(run.get('learner_overrides'))}"
+        label = f"{name}: seed {run['seed']}, {floor_label(run.get('learner_overrides'))}"
         style = {"color": greys[i % len(greys)], "lw": 0.8, "ls": ("-", "--", ":")[j % 3]}
         ax[0].plot(up, [r["violation_rate"] for r in c], label=label, **style)
         ax[1].plot(up, [r["lambda2"] for r in c], label=label, **style)
-    for run in runs.values():
+    for name, run in runs.items():
         c = [r for r in run["curve"] if r["updates"] > 0]
         up = [r["updates"] for r in c]
-        label = f"seed {run['seed']}, {floor_label(run['learner_overrides'])}"
+        label = f"{name}: seed {run['seed']}, {floor_label(run['learner_overrides'])}"
         (line,) = ax[0].plot(up, [r["violation_rate"] for r in c], lw=1.0, label=label)
         col = line.get_color()
         ax[1].plot(up, [r["lambda2"] for r in c], color=col, lw=1.0, label=f"{label}: λ2(s, z)")
