@@ -23,7 +23,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from ursa.config import preset  # noqa: E402
-from ursa.eval.loading import load_config  # noqa: E402
+from ursa.eval.loading import iter_metrics, load_config  # noqa: E402
 
 LEARNER_KEYS = {
     "entropy": "actor/entropy",
@@ -33,16 +33,6 @@ LEARNER_KEYS = {
     "within_delta": "imag/within_delta",
     "cost_return": "imag/cost_return",
 }
-
-
-def read_jsonl(path: Path) -> list[dict[str, Any]]:
-    rows = []
-    for line in path.read_text().splitlines():
-        try:
-            rows.append(json.loads(line))
-        except json.JSONDecodeError:
-            continue  # a line cut by a kill
-    return rows
 
 
 def overrides(cfg: Any, base: Any) -> dict[str, Any]:
@@ -108,9 +98,14 @@ def main() -> None:
     ap.add_argument("--window", type=int, default=1000, help="pooled env steps per row")
     ap.add_argument("--out", type=Path, required=True)
     a = ap.parse_args()
-    metrics = a.run / "metrics"
-    collectors = [read_jsonl(p) for p in sorted(metrics.glob("collector-c*.jsonl"))]
-    learner = read_jsonl(metrics / "learner-main.jsonl")
+    by_collector: dict[str, list[dict[str, Any]]] = {}
+    learner: list[dict[str, Any]] = []
+    for row in iter_metrics(a.run):
+        if row["service"] == "collector" and row["id"].startswith("c"):  # not the evaluator
+            by_collector.setdefault(row["id"], []).append(row)
+        elif row["service"] == "learner":
+            learner.append(row)
+    collectors = [by_collector[k] for k in sorted(by_collector)]
     cfg = load_config(a.run)
     base = preset(cfg.preset, cfg.env, cfg.feature)  # type: ignore[arg-type]
     rows = curve(collectors, learner, a.window)
