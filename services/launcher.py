@@ -67,7 +67,11 @@ class UpArgs:
     """Restarts of one service that exits while the stack runs, as compose's ``restart:
     unless-stopped`` (it resumes from the run directory), after 1, 2, 4, ... s; one more exit
     stops the stack with exit code 1, so that a service that cannot start (a bad flag, a config
-    it rejects) does not leave the rest running without it. 0: the first exit stops it."""
+    it rejects) does not leave the rest running without it. A service that then runs for
+    ``restart_reset_s`` has its count set back to 0. 0: the first exit stops it."""
+    restart_reset_s: float = 600.0
+    """Seconds a restarted service must run before its restart count is set back to 0 (as
+    Kubernetes forgets a crash-loop backoff after ten minutes of running)."""
     extra: tuple[str, ...] = ()
     """Extra arguments passed to every service, given after ``--``: ``ursa up --env a1 --
     --core.learner.imag-starts 128``."""
@@ -85,6 +89,8 @@ class Child:
         """How often :func:`supervise` started it again."""
         self.restart_at: float | None = None
         """When (``time.monotonic``) it is started again; None while it runs."""
+        self.up_since: float | None = None
+        """When :func:`supervise` first saw its current process running; None before that."""
         self._spawn()
 
     def _spawn(self) -> None:
@@ -105,6 +111,7 @@ class Child:
         """Start the same command again (its old process has exited)."""
         self.restarts += 1
         self.restart_at = None
+        self.up_since = None
         self._spawn()
 
     def _pump(self) -> None:
@@ -126,14 +133,33 @@ class Child:
                 pass
 
 
-def supervise(children: list[Child], max_restarts: int, backoff_s: float, now: float) -> str | None:
+def supervise(
+    children: list[Child],
+    max_restarts: int,
+    backoff_s: float,
+    now: float,
+    reset_after_s: float = 600.0,
+) -> str | None:
     """One look at the services (not the router): a service that has exited is started again
     ``backoff_s``·2^k seconds later (k: its restarts so far), at most ``max_restarts`` times.
+    A service that has then run for ``reset_after_s`` has its count set back to 0, so that a
+    rare crash is forgiven while a crash loop still stops the stack.
     Returns why the stack must stop (a service exited once more than that), else None."""
     for c in children:
         code = c.proc.poll()
         if code is None:
+            if c.up_since is None:
+                c.up_since = now
+            elif c.restarts and now - c.up_since >= reset_after_s:
+                print(
+                    f"{c.name} has run {now - c.up_since:.0f} s since its last restart; "
+                    f"its restart count ({c.restarts}) is back to 0",
+                    file=sys.stderr,
+                    flush=True,
+                )
+                c.restarts = 0
             continue
+        c.up_since = None
         if c.restart_at is None:
             if c.restarts >= max_restarts:
                 return (
@@ -280,7 +306,9 @@ def up(args: UpArgs) -> int:
             print("router exited; stopping the stack", file=sys.stderr, flush=True)
             code = 1
             break
-        failed = supervise(children[1:], args.max_restarts, 1.0, time.monotonic())
+        failed = supervise(
+            children[1:], args.max_restarts, 1.0, time.monotonic(), args.restart_reset_s
+        )
         if failed is not None:
             print(failed, file=sys.stderr, flush=True)
             code = 1

@@ -150,3 +150,60 @@ def test_up_restarts_a_service_that_exits_then_gives_up(tmp_path: Path) -> None:
     finally:
         good.signal(15)
         good.proc.wait(timeout=10)
+
+
+def test_up_forgives_a_restart_after_the_service_has_run_long_enough(tmp_path: Path) -> None:
+    """A service that crashed once and then ran ``reset_after_s`` has its restart count back
+    at 0: with max_restarts=1 a second crash, later, is restarted rather than stopping the
+    stack; a second crash inside the window stops it. Real processes; the clock is ``now``."""
+    import os
+    import sys
+    import time
+    from collections.abc import Callable
+
+    from services.launcher import Child, supervise
+
+    flag = tmp_path / "crash"
+    flag.write_text("1")
+    # exits with code 3 while the flag file exists, else runs until killed
+    body = (
+        f"import os, time\nif os.path.exists({str(flag)!r}): raise SystemExit(3)\ntime.sleep(60)\n"
+    )
+    env = dict(os.environ)
+
+    def run_until(
+        c: Child, t: float, cond: Callable[[Child], bool], limit: int = 500
+    ) -> tuple[float, str | None]:
+        reason = None
+        for _ in range(limit):
+            reason = supervise([c], max_restarts=1, backoff_s=0.01, now=t, reset_after_s=5.0)
+            if reason is not None or cond(c):
+                break
+            time.sleep(0.02)
+            t += 0.02
+        return t, reason
+
+    for late in (True, False):
+        flag.write_text("1")
+        c = Child("svc", [sys.executable, "-c", body], env, "31")
+        try:
+            c.proc.wait(timeout=30)
+            flag.unlink()  # the restart runs
+            t, reason = run_until(c, 0.0, lambda s: s.restarts == 1 and s.proc.poll() is None)
+            assert reason is None and c.restarts == 1
+            t, _ = run_until(c, t, lambda s: s.up_since is not None)
+            t += 6.0 if late else 1.0
+            supervise([c], max_restarts=1, backoff_s=0.01, now=t, reset_after_s=5.0)
+            assert c.restarts == (0 if late else 1)
+            flag.write_text("1")  # its next start crashes again
+            c.signal(9)
+            c.proc.wait(timeout=10)
+            t, reason = run_until(c, t, lambda s: s.restarts >= 1 and s.restart_at is None)
+            if late:
+                assert reason is None and c.restarts == 1  # restarted, not given up on
+            else:
+                assert reason is not None and "after 1 restarts" in reason
+        finally:
+            if c.proc.poll() is None:
+                c.signal(9)
+                c.proc.wait(timeout=10)
