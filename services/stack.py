@@ -197,6 +197,56 @@ class StatsWatcher:
         self._sub.undeclare()
 
 
+def launch_up(
+    run_id: str, runs_dir: Path, port: int, log: Path, env: dict[str, str], *args: str
+) -> subprocess.Popen[bytes]:
+    """``ursa up`` of the point env's ``tiny`` preset with two collectors and no dashboard, API
+    or evaluator, as a process in its own session writing to ``log``; ``args`` are added."""
+    out = open(log, "wb")  # noqa: SIM115 - the child holds it; closed here once it is handed over
+    try:
+        return subprocess.Popen(
+            [
+                sys.executable,
+                "-m",
+                "services.cli",
+                "up",
+                "--env",
+                "point",
+                "--preset",
+                "tiny",
+                "--collectors",
+                "2",
+                "--run-id",
+                run_id,
+                "--runs-dir",
+                str(runs_dir),
+                "--router-port",
+                str(port),
+                "--no-dashboard",
+                "--no-api",
+                "--no-evaluator",
+                *args,
+            ],
+            cwd=ROOT,
+            env=env,
+            stdout=out,
+            stderr=subprocess.STDOUT,
+            start_new_session=True,
+        )
+    finally:
+        out.close()
+
+
+def stop_up(launcher: subprocess.Popen[bytes], timeout: float) -> None:
+    """SIGTERM to ``ursa up`` and wait for it; SIGKILL to its whole group after ``timeout``."""
+    launcher.send_signal(signal.SIGTERM)
+    try:
+        launcher.wait(timeout=timeout)
+    except subprocess.TimeoutExpired:
+        os.killpg(launcher.pid, signal.SIGKILL)
+        launcher.wait(timeout=10)
+
+
 def wait_for(pred: Callable[[], Any], timeout: float, what: str, every: float = 0.2) -> Any:
     deadline = time.monotonic() + timeout
     while time.monotonic() < deadline:

@@ -4,8 +4,6 @@ from __future__ import annotations
 
 import os
 import signal
-import subprocess
-import sys
 import time
 import uuid
 from pathlib import Path
@@ -15,7 +13,7 @@ import pytest
 from proto.topics import Topics
 from services.common.bus import open_session
 from services.common.config import BusConfig
-from services.stack import ROOT, StatsWatcher, free_port, wait_for, wait_port
+from services.stack import StatsWatcher, free_port, launch_up, stop_up, wait_for, wait_port
 
 pytestmark = pytest.mark.slow
 
@@ -44,34 +42,7 @@ def test_launcher_stack_moves_data_and_stops_clean(tmp_path: Path) -> None:
     run_id = f"skel-{uuid.uuid4().hex[:8]}"
     port = free_port()
     env = {**os.environ, "PYTHONUNBUFFERED": "1"}
-    log = open(tmp_path / "launcher.log", "wb")  # noqa: SIM115
-    launcher = subprocess.Popen(
-        [
-            sys.executable,
-            "-m",
-            "services.cli",
-            "up",
-            "--env",
-            "point",
-            "--preset",
-            "tiny",
-            "--collectors",
-            "2",
-            "--run-id",
-            run_id,
-            "--runs-dir",
-            str(tmp_path / "runs"),
-            "--router-port",
-            str(port),
-            "--no-dashboard",
-            "--no-api",
-            "--no-evaluator",
-        ],
-        cwd=ROOT,
-        env=env,
-        stdout=log,
-        stderr=subprocess.STDOUT,
-    )
+    launcher = launch_up(run_id, tmp_path / "runs", port, tmp_path / "launcher.log", env)
     try:
         wait_port(port, 30)
         session = open_session(BusConfig(router=f"tcp/127.0.0.1:{port}"))
@@ -120,11 +91,7 @@ def test_launcher_stack_moves_data_and_stops_clean(tmp_path: Path) -> None:
         watcher.close()
         session.close()
     finally:
-        launcher.send_signal(signal.SIGTERM)
-        try:
-            launcher.wait(timeout=20)
-        finally:
-            log.close()
+        stop_up(launcher, 20)
     out = (tmp_path / "launcher.log").read_text()
     assert "URSA is up" in out and "URSA stopped." in out, out[-3000:]
     assert "repertoire exited with code -9; restarting it in 1 s (restart 1 of 5)" in out

@@ -5,16 +5,13 @@ and env steps, the collectors' env steps)."""
 from __future__ import annotations
 
 import os
-import signal
-import subprocess
-import sys
 import uuid
 from pathlib import Path
 
 import pytest
 from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 
-from services.stack import ROOT, free_port, wait_for
+from services.stack import free_port, launch_up, stop_up, wait_for
 
 pytestmark = pytest.mark.slow
 
@@ -41,35 +38,7 @@ def test_stack_writes_tensorboard_scalars_at_increasing_steps(tmp_path: Path) ->
     runs = tmp_path / "runs"
     tb = runs / run_id / "tensorboard"
     env = {**os.environ, "PYTHONUNBUFFERED": "1", "URSA_METRICS_EVERY_S": "1"}
-    log = open(tmp_path / "launcher.log", "wb")  # noqa: SIM115
-    launcher = subprocess.Popen(
-        [
-            sys.executable,
-            "-m",
-            "services.cli",
-            "up",
-            "--env",
-            "point",
-            "--preset",
-            "tiny",
-            "--collectors",
-            "2",
-            "--run-id",
-            run_id,
-            "--runs-dir",
-            str(runs),
-            "--router-port",
-            str(free_port()),
-            "--no-dashboard",
-            "--no-api",
-            "--no-evaluator",
-        ],
-        cwd=ROOT,
-        env=env,
-        stdout=log,
-        stderr=subprocess.STDOUT,
-        start_new_session=True,
-    )
+    launcher = launch_up(run_id, runs, free_port(), tmp_path / "launcher.log", env)
     try:
 
         def trained() -> bool:
@@ -84,13 +53,7 @@ def test_stack_writes_tensorboard_scalars_at_increasing_steps(tmp_path: Path) ->
 
         wait_for(trained, 240, "three learner and collector rows at growing steps", every=2.0)
     finally:
-        launcher.send_signal(signal.SIGTERM)
-        try:
-            launcher.wait(timeout=30)
-        except subprocess.TimeoutExpired:
-            os.killpg(launcher.pid, signal.SIGKILL)
-            launcher.wait(timeout=10)
-        log.close()
+        stop_up(launcher, 30)
     out = (tmp_path / "launcher.log").read_text()
     assert f"--logdir {tb}" in out, out[-3000:]
 
