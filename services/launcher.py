@@ -26,6 +26,10 @@ from services.common.metrics import tensorboard_command
 _COLORS = ["36", "33", "35", "32", "34", "31", "96", "93", "95", "92"]
 
 
+RESTART_RESET_S = 600.0
+"""Default seconds of running after which a service's restart count is set back to 0."""
+
+
 @dataclass(frozen=True)
 class UpArgs:
     """Start the whole stack on this machine."""
@@ -69,7 +73,7 @@ class UpArgs:
     stops the stack with exit code 1, so that a service that cannot start (a bad flag, a config
     it rejects) does not leave the rest running without it. A service that then runs for
     ``restart_reset_s`` has its count set back to 0. 0: the first exit stops it."""
-    restart_reset_s: float = 600.0
+    restart_reset_s: float = RESTART_RESET_S
     """Seconds a restarted service must run before its restart count is set back to 0 (as
     Kubernetes forgets a crash-loop backoff after ten minutes of running)."""
     extra: tuple[str, ...] = ()
@@ -138,7 +142,7 @@ def supervise(
     max_restarts: int,
     backoff_s: float,
     now: float,
-    reset_after_s: float = 600.0,
+    reset_after_s: float = RESTART_RESET_S,
 ) -> str | None:
     """One look at the services (not the router): a service that has exited is started again
     ``backoff_s``·2^k seconds later (k: its restarts so far), at most ``max_restarts`` times.

@@ -198,10 +198,10 @@ class StatsWatcher:
 
 
 def launch_up(
-    run_id: str, runs_dir: Path, port: int, log: Path, env: dict[str, str], *args: str
+    run_id: str, runs_dir: Path, port: int, log: Path, env: dict[str, str]
 ) -> subprocess.Popen[bytes]:
     """``ursa up`` of the point env's ``tiny`` preset with two collectors and no dashboard, API
-    or evaluator, as a process in its own session writing to ``log``; ``args`` are added."""
+    or evaluator, as a process in its own session writing to ``log``."""
     out = open(log, "wb")  # noqa: SIM115 - the child holds it; closed here once it is handed over
     try:
         return subprocess.Popen(
@@ -225,7 +225,6 @@ def launch_up(
                 "--no-dashboard",
                 "--no-api",
                 "--no-evaluator",
-                *args,
             ],
             cwd=ROOT,
             env=env,
